@@ -1,0 +1,3 @@
+from semslam.cli import run
+
+run()

@@ -1,0 +1,103 @@
+"""The ``semslam`` command: thin wiring from arguments to ``semslam.pipeline``.
+
+Known errors (``SemslamError``) become one line on stderr and exit code 2;
+imports are lazy so ``semslam --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from semslam import __version__
+from semslam.errors import SemslamError
+
+app = typer.Typer(
+    name="semslam",
+    help="Semantic SLAM for parking garages: simulate drives, build maps, localize.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+class PresetName(StrEnum):
+    small = "small"
+    garage = "garage"
+    large = "large"
+
+
+def _fail(error: Exception) -> None:
+    """One line on stderr for a known error (bad input, unwritable folder), exit code 2."""
+    if isinstance(error, OSError) and error.filename:
+        message = f"{error.filename}: {error.strerror or error}"
+    else:
+        message = str(error)
+    typer.echo(f"semslam: error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"semslam {__version__}")
+        raise typer.Exit()
+
+
+ConfigOption = Annotated[
+    Path | None,
+    typer.Option("--config", help="JSON file overriding defaults (see `semslam dump-config`)."),
+]
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")
+    ] = False,
+) -> None:
+    """Semantic SLAM for parking garages."""
+
+
+@app.command()
+def simulate(
+    out_dir: Annotated[Path, typer.Argument(help="Drive folder to write.")],
+    preset: Annotated[PresetName, typer.Option(help="World size.")] = PresetName.garage,
+    seed: Annotated[int, typer.Option(help="Fixes the world.")] = 0,
+    drive: Annotated[int, typer.Option(help="Another route and noise through the same world.")] = 0,
+    images: Annotated[bool, typer.Option("--images/--no-images", help="Render images.")] = True,
+    config: ConfigOption = None,
+    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+) -> None:
+    """Simulate a drive through a seeded garage and write it as a drive folder."""
+    from semslam.config import load_config
+    from semslam.pipeline import simulate as run
+    from semslam.reporting import print_simulation_summary
+
+    try:
+        summary = run(out_dir, preset.value, seed, drive, images, load_config(config), progress)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_simulation_summary(summary)
+
+
+@app.command("dump-config")
+def dump_config(config: ConfigOption = None) -> None:
+    """Print the configuration in force (defaults, then --config, then SEMSLAM_ variables)."""
+    from semslam.config import config_to_json, load_config
+
+    try:
+        typer.echo(config_to_json(load_config(config)), nl=False)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+
+
+def run() -> None:  # pragma: no cover - console entry for `python -m semslam`
+    app(prog_name="semslam")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(run())

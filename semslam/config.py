@@ -1,0 +1,131 @@
+"""Configuration: one root model, a section per part, defaults that are the documented behaviour.
+
+Each part of semslam is built from its own section (``config.simulation.drive``
+builds the route follower, and so on). Values come from the defaults, then an
+optional JSON file (``--config``), then ``SEMSLAM_`` environment variables
+(``SEMSLAM_SIMULATION__DRIVE__MAX_SPEED=2.5``). ``semslam dump-config``
+prints the result; every run writes it beside its outputs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from semslam.errors import ConfigError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class OdometryNoiseConfig(_Section):
+    """Wheel-speed and gyro errors of a simulated drive (per odometry sample)."""
+
+    speed_sigma: float = Field(0.03, ge=0, description="white noise on wheel speed, m/s")
+    speed_scale_sigma: float = Field(0.01, ge=0, description="per-drive scale error (1-sigma)")
+    gyro_sigma: float = Field(0.003, ge=0, description="white noise on yaw rate, rad/s")
+    gyro_bias_sigma: float = Field(0.002, ge=0, description="per-drive constant gyro bias, rad/s")
+    gyro_bias_walk: float = Field(
+        5e-5, ge=0, description="gyro bias random walk, rad/s per sqrt(s)"
+    )
+
+
+class ObservationNoiseConfig(_Section):
+    """The noisy detector model. Defaults are the hard case later issues are judged on."""
+
+    tag_range_limit: float = Field(25.0, gt=0, description="farthest tag reported, m")
+    tag_max_incidence_deg: float = Field(70.0, gt=0, le=90)
+    tag_min_pixels: float = Field(14.0, ge=0, description="smallest tag side in the image, px")
+    tag_miss_rate: float = Field(0.05, ge=0, le=1)
+    tag_range_sigma_rel: float = Field(0.01, ge=0, description="range noise per metre of range")
+    tag_range_sigma_abs: float = Field(0.02, ge=0, description="range noise floor, m")
+    tag_bearing_sigma_deg: float = Field(0.3, ge=0)
+    tag_yaw_sigma_deg: float = Field(3.0, ge=0, description="PnP rotation noise")
+    slot_miss_rate: float = Field(0.2, ge=0, le=1)
+    slot_false_rate: float = Field(
+        0.05, ge=0, lt=1, description="expected fraction of slot detections that are false"
+    )
+    slot_corner_sigma: float = Field(0.05, ge=0, description="corner noise per axis, m")
+    slot_exact_sigma: float = Field(0.01, gt=0, description="corner sigma declared by exact obs")
+    id_error_rate: float = Field(0.2, ge=0, le=1, description="readable IDs that are wrong")
+    id_missing_rate: float = Field(0.1, ge=0, le=1, description="IDs not readable at all")
+    label_confidence_range: tuple[float, float] = Field(
+        (0.5, 1.0), description="confidence of right AND wrong IDs is drawn from this range"
+    )
+    detection_confidence_range: tuple[float, float] = (0.6, 1.0)
+    marking_endpoint_sigma: float = Field(0.03, ge=0, description="end-point noise per axis, m")
+    marking_miss_rate: float = Field(0.1, ge=0, le=1)
+    marking_false_rate: float = Field(0.1, ge=0, lt=1)
+    marking_min_length: float = Field(0.4, gt=0, description="shortest visible segment, m")
+
+
+class DriveConfig(_Section):
+    """Route following: speeds, rates and the lane the car keeps."""
+
+    min_speed: float = Field(1.0, gt=0, description="m/s")
+    max_speed: float = Field(3.0, gt=0, description="m/s")
+    lateral_accel: float = Field(0.8, gt=0, description="comfort limit in turns, m/s^2")
+    accel: float = Field(0.6, gt=0, description="longitudinal limit, m/s^2")
+    turn_radius: float = Field(4.0, gt=0, description="corner fillet radius, m")
+    lane_offset: float = Field(1.5, ge=0, description="right of the aisle centre line, m")
+    odometry_rate: float = Field(50.0, gt=0, description="wheel speed + gyro samples, Hz")
+    frame_rate: float = Field(10.0, gt=0, description="camera frames and observations, Hz")
+
+
+class RenderConfig(_Section):
+    """Which images the simulator writes and how."""
+
+    images: bool = True
+    image_format: str = Field("jpg", pattern="^(jpg|png)$")
+    jpeg_quality: int = Field(92, ge=50, le=100)
+    workers: int = Field(2, ge=1, description="processes rendering images")
+
+
+class SimulationConfig(_Section):
+    """Everything ``semslam simulate`` uses."""
+
+    drive: DriveConfig = DriveConfig()
+    odometry_noise: OdometryNoiseConfig = OdometryNoiseConfig()
+    observation_noise: ObservationNoiseConfig = ObservationNoiseConfig()
+    render: RenderConfig = RenderConfig()
+
+
+class SemslamConfig(BaseSettings):
+    """The root configuration."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="SEMSLAM_", env_nested_delimiter="__", extra="forbid", frozen=True
+    )
+
+    simulation: SimulationConfig = SimulationConfig()
+
+
+def load_config(path: Path | None = None) -> SemslamConfig:
+    """Defaults, overridden by the JSON file at ``path`` (if given) and SEMSLAM_ variables."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            data = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: config file not found") from None
+        except json.JSONDecodeError as e:
+            raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"{path}: a config file holds one JSON object")
+    try:
+        return SemslamConfig(**data)
+    except ValidationError as e:
+        err = e.errors()[0]
+        field = ".".join(str(p) for p in err["loc"])
+        where = str(path) if path is not None else "configuration"
+        raise ConfigError(f"{where}: {field}: {err['msg']}") from None
+
+
+def config_to_json(config: SemslamConfig) -> str:
+    """The configuration as pretty JSON (what ``dump-config`` prints)."""
+    return json.dumps(config.model_dump(mode="json"), indent=2) + "\n"

@@ -1,0 +1,80 @@
+"""SE(2) helpers on plain numpy arrays.
+
+A pose is a length-3 array ``(x, y, yaw)``: metres, metres, radians,
+yaw counter-clockwise from +x and wrapped to (-pi, pi]. ``mTv`` is the pose
+of frame v expressed in frame m; ``vP`` is a point (or an (N, 2) array of
+points) in frame v. Composition follows the usual rule ``mTw = mTv * vTw``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def wrap_angle(angle: ArrayLike) -> FloatArray | float:
+    """Wrap angles (radians) to (-pi, pi]; scalars stay scalars."""
+    a = np.asarray(angle, dtype=float)
+    wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    if wrapped.ndim == 0:
+        return float(wrapped)
+    return wrapped
+
+
+def pose(x: float, y: float, yaw: float) -> FloatArray:
+    """A pose array ``(x, y, yaw)`` with yaw wrapped."""
+    return np.array([x, y, wrap_angle(yaw)], dtype=float)
+
+
+def rotation(yaw: float) -> FloatArray:
+    """2x2 rotation matrix for ``yaw`` radians."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+def compose(aTb: ArrayLike, bTc: ArrayLike) -> FloatArray:
+    """``aTc = aTb * bTc`` for poses ``(x, y, yaw)``."""
+    ax, ay, ayaw = np.asarray(aTb, dtype=float)
+    bx, by, byaw = np.asarray(bTc, dtype=float)
+    c, s = math.cos(ayaw), math.sin(ayaw)
+    return np.array([ax + c * bx - s * by, ay + s * bx + c * by, wrap_angle(ayaw + byaw)])
+
+
+def inverse(aTb: ArrayLike) -> FloatArray:
+    """``bTa`` from ``aTb``."""
+    x, y, yaw = np.asarray(aTb, dtype=float)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([-c * x - s * y, s * x - c * y, wrap_angle(-yaw)])
+
+
+def between(aTb: ArrayLike, aTc: ArrayLike) -> FloatArray:
+    """``bTc = inverse(aTb) * aTc``: the relative pose of c seen from b."""
+    return compose(inverse(aTb), aTc)
+
+
+def transform_points(aTb: ArrayLike, bP: ArrayLike) -> FloatArray:
+    """Points from frame b to frame a: ``aP = aTb * bP``; ``bP`` is (2,) or (N, 2)."""
+    x, y, yaw = np.asarray(aTb, dtype=float)
+    pts = np.asarray(bP, dtype=float)
+    return pts @ rotation(yaw).T + np.array([x, y])
+
+
+def inverse_transform_points(aTb: ArrayLike, aP: ArrayLike) -> FloatArray:
+    """Points from frame a to frame b: ``bP = inverse(aTb) * aP``; (2,) or (N, 2)."""
+    x, y, yaw = np.asarray(aTb, dtype=float)
+    pts = np.asarray(aP, dtype=float)
+    return (pts - np.array([x, y])) @ rotation(yaw)
+
+
+def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(qx, qy, qz, qw)`` of a rotation by ``yaw`` about +z."""
+    return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+
+
+def quaternion_to_yaw(qx: float, qy: float, qz: float, qw: float) -> float:
+    """Yaw (rotation about +z, radians) of a quaternion; roll and pitch are ignored."""
+    return float(wrap_angle(math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))))

@@ -1,0 +1,1 @@
+"""The seeded garage simulator: worlds, drives, sensors and rendered images."""

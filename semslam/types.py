@@ -1,0 +1,186 @@
+"""Core value types: observations in the vehicle frame and the semantic map.
+
+All are frozen dataclasses holding numpy arrays (compare them through
+their dict form in ``semslam.io``). Frames follow DESIGN.md: the map frame is
+the garage's ground plane, the vehicle frame has x forward, y left, origin at
+the vehicle centre on the ground (ISO 8855). Lengths in metres, angles in
+radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+
+from semslam.geometry import FloatArray
+
+
+class SlotKind(StrEnum):
+    """How a slot's entrance meets the aisle."""
+
+    PERPENDICULAR = "perpendicular"
+    PARALLEL = "parallel"
+    SLANTED = "slanted"
+
+
+class TagFamily(StrEnum):
+    """AprilTag families that pupil-apriltags decodes."""
+
+    TAG36H11 = "tag36h11"
+    TAG25H9 = "tag25h9"
+    TAG16H5 = "tag16h5"
+    TAG_STANDARD41H12 = "tagStandard41h12"
+
+
+class JunctionShape(StrEnum):
+    """Shape of a painted junction at a slot's entrance corner (a marking point)."""
+
+    T = "T"
+    L = "L"
+
+
+# --------------------------------------------------------------------------- observations
+
+
+@dataclass(frozen=True, eq=False)
+class SlotObservation:
+    """A parking slot seen in one frame.
+
+    Attributes:
+        vCorners: (4, 2) corners in the vehicle frame, metres, in the order
+            entrance-left, entrance-right, rear-right, rear-left as seen from the aisle.
+        kind: perpendicular, parallel or slanted.
+        label: painted slot ID as read ("B17"), or None when unreadable.
+        label_confidence: probability in [0, 1] that ``label`` is right (0 without a label).
+        confidence: probability in [0, 1] that the slot is real.
+        corner_sigma: 1-sigma isotropic noise of each corner, metres.
+    """
+
+    vCorners: FloatArray
+    kind: SlotKind
+    label: str | None
+    label_confidence: float
+    confidence: float
+    corner_sigma: float
+
+
+@dataclass(frozen=True, eq=False)
+class TagObservation:
+    """A fiducial tag seen in one frame.
+
+    Attributes:
+        family: tag family.
+        tag_id: decoded ID.
+        size: edge length of the tag's black square, metres.
+        vTt: pose ``(x, y, yaw)`` of the tag centre in the vehicle frame; yaw
+            is the direction of the tag's outward normal (from the face toward a viewer).
+        height: height of the tag centre above the ground, metres.
+        covariance: (3, 3) covariance of ``vTt`` (m^2, m*rad, rad^2).
+    """
+
+    family: TagFamily
+    tag_id: int
+    size: float
+    vTt: FloatArray
+    height: float
+    covariance: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class MarkingObservation:
+    """A painted line segment seen in one frame.
+
+    Attributes:
+        vA, vB: (2,) end points in the vehicle frame, metres (the visible part only).
+        width: painted line width, metres.
+        confidence: probability in [0, 1] that the segment is a real marking.
+    """
+
+    vA: FloatArray
+    vB: FloatArray
+    width: float
+    confidence: float
+
+
+@dataclass(frozen=True, eq=False)
+class FrameObservations:
+    """Everything perceived at one frame time ``t`` (seconds)."""
+
+    t: float
+    slots: tuple[SlotObservation, ...] = ()
+    tags: tuple[TagObservation, ...] = ()
+    markings: tuple[MarkingObservation, ...] = ()
+
+
+# --------------------------------------------------------------------------- map
+
+
+@dataclass(frozen=True, eq=False)
+class Slot:
+    """A parking slot in the map frame.
+
+    Attributes:
+        id: integer ID unique within the map.
+        label: painted slot ID ("B17") or None when never read.
+        label_confidence: probability in [0, 1] that ``label`` is right.
+        corners: (4, 2) corners in the map frame, metres (entrance-left,
+            entrance-right, rear-right, rear-left as seen from the aisle).
+        corner_covariances: (4, 2, 2) covariance of each corner, m^2.
+        kind: perpendicular, parallel or slanted.
+        observations: how many frames saw this slot.
+    """
+
+    id: int
+    label: str | None
+    label_confidence: float
+    corners: FloatArray
+    corner_covariances: FloatArray
+    kind: SlotKind
+    observations: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Tag:
+    """A fiducial tag in the map frame.
+
+    Attributes:
+        family, tag_id, size: as in :class:`TagObservation`.
+        mTt: pose ``(x, y, yaw)`` of the tag centre in the map frame; yaw is
+            the direction of the outward normal.
+        height: height of the tag centre above the ground, metres.
+        covariance: (3, 3) covariance of ``mTt``.
+    """
+
+    family: TagFamily
+    tag_id: int
+    size: float
+    mTt: FloatArray
+    height: float
+    covariance: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class Marking:
+    """A painted line marking in the map frame: end points ``a``, ``b`` (2,), width, metres."""
+
+    a: FloatArray
+    b: FloatArray
+    width: float
+
+
+@dataclass(frozen=True, eq=False)
+class SemanticMap:
+    """The map of a garage: slots, tags, markings and free-form metadata."""
+
+    slots: tuple[Slot, ...] = ()
+    tags: tuple[Tag, ...] = ()
+    markings: tuple[Marking, ...] = ()
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+
+def default_covariance(sigma: float, n: int = 2) -> FloatArray:
+    """An isotropic n x n covariance with standard deviation ``sigma``."""
+    return np.eye(n) * sigma * sigma

@@ -1,0 +1,63 @@
+import math
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from semslam.geometry import (
+    between,
+    compose,
+    inverse,
+    inverse_transform_points,
+    quaternion_to_yaw,
+    transform_points,
+    wrap_angle,
+    yaw_to_quaternion,
+)
+
+coord = st.floats(-100, 100, allow_nan=False)
+angle = st.floats(-20, 20, allow_nan=False)
+poses = st.tuples(coord, coord, angle).map(lambda p: np.array(p))
+
+
+@given(angle)
+def test_wrap_angle_range_and_equivalence(a):
+    w = wrap_angle(a)
+    assert -math.pi < w <= math.pi
+    assert math.isclose(math.cos(w), math.cos(a), abs_tol=1e-9)
+    assert math.isclose(math.sin(w), math.sin(a), abs_tol=1e-9)
+
+
+def test_wrap_angle_boundaries():
+    assert wrap_angle(math.pi) == math.pi
+    assert wrap_angle(-math.pi) == math.pi
+    assert np.allclose(wrap_angle(np.array([0.0, 3 * math.pi, -3 * math.pi])), [0, math.pi, math.pi])
+
+
+@given(poses, poses)
+def test_compose_inverse_round_trip(a, b):
+    c = compose(a, b)
+    back = compose(inverse(a), c)
+    assert np.allclose(back[:2], b[:2], atol=1e-9)
+    assert math.isclose(wrap_angle(back[2] - b[2]), 0.0, abs_tol=1e-9)
+    assert np.allclose(between(a, c)[:2], b[:2], atol=1e-9)
+
+
+@given(poses, st.lists(st.tuples(coord, coord), min_size=1, max_size=5))
+def test_transform_points_round_trip(p, pts):
+    pts = np.array(pts)
+    there = transform_points(p, pts)
+    assert np.allclose(inverse_transform_points(p, there), pts, atol=1e-9)
+    # distances are preserved
+    assert np.allclose(np.linalg.norm(there - there[0], axis=1), np.linalg.norm(pts - pts[0], axis=1))
+
+
+def test_transform_matches_compose():
+    a = np.array([1.0, 2.0, 0.7])
+    b = np.array([3.0, -1.0, 0.2])
+    assert np.allclose(transform_points(a, b[:2]), compose(a, b)[:2])
+
+
+@given(angle)
+def test_quaternion_round_trip(a):
+    assert math.isclose(wrap_angle(quaternion_to_yaw(*yaw_to_quaternion(a)) - a), 0.0, abs_tol=1e-9)
