@@ -75,6 +75,9 @@ class DriveConfig(_Section):
     lane_offset: float = Field(1.5, ge=0, description="right of the aisle centre line, m")
     odometry_rate: float = Field(50.0, gt=0, description="wheel speed + gyro samples, Hz")
     frame_rate: float = Field(10.0, gt=0, description="camera frames and observations, Hz")
+    max_duration: float | None = Field(
+        None, gt=0, description="stop the drive after this many seconds (None: whole route)"
+    )
 
 
 class RenderConfig(_Section):

@@ -112,8 +112,9 @@ def _render_frames(job: tuple[str, list[tuple[int, np.ndarray, int]]]) -> int:
             if not ok:
                 raise SimulationError(f"could not encode the {name} image of frame {index}")
             atomic_write_bytes(root / "images" / name / f"{index:06d}.{fmt}", data.tobytes())
-        atomic_write_text(root / "labels" / "topview" / f"{index:06d}.json",
-                          annotation_to_json(annotation))
+        atomic_write_text(
+            root / "labels" / "topview" / f"{index:06d}.json", annotation_to_json(annotation)
+        )
     return len(frames)
 
 
@@ -132,8 +133,9 @@ def _render_images(tmp: Path, sim, config: SemslamConfig, show_progress: bool | 
             for n in map(_render_frames, jobs):
                 bar.update(n)
             return
-        with ProcessPoolExecutor(render.workers, initializer=_init_render_worker,
-                                 initargs=init_args) as pool:
+        with ProcessPoolExecutor(
+            render.workers, initializer=_init_render_worker, initargs=init_args
+        ) as pool:
             for n in pool.map(_render_frames, jobs):
                 bar.update(n)
 
@@ -141,8 +143,15 @@ def _render_images(tmp: Path, sim, config: SemslamConfig, show_progress: bool | 
 # --------------------------------------------------------------------------- simulate
 
 
-def simulate(out_dir: Path, preset: str, seed: int, drive_index: int, images: bool,
-             config: SemslamConfig, show_progress: bool | None = None) -> SimulationSummary:
+def simulate(
+    out_dir: Path,
+    preset: str,
+    seed: int,
+    drive_index: int,
+    images: bool,
+    config: SemslamConfig,
+    show_progress: bool | None = None,
+) -> SimulationSummary:
     """Simulate a drive and write it as a drive folder at ``out_dir``."""
     from semslam.io import (
         DriveInfo,
@@ -172,19 +181,30 @@ def simulate(out_dir: Path, preset: str, seed: int, drive_index: int, images: bo
         write_observations(tmp / "observations" / "noisy.jsonl", sim.noisy)
         fmt = config.simulation.render.image_format
         n = len(sim.frame_times)
-        columns = {"topview": [f"images/topview/{i:06d}.{fmt}" for i in range(n)],
-                   "front": [f"images/front/{i:06d}.{fmt}" for i in range(n)]} if images else {}
+        columns = (
+            {
+                "topview": [f"images/topview/{i:06d}.{fmt}" for i in range(n)],
+                "front": [f"images/front/{i:06d}.{fmt}" for i in range(n)],
+            }
+            if images
+            else {}
+        )
         write_frames(tmp / "frames.csv", FrameIndex(sim.frame_times, columns))
         if images:
             _render_images(tmp, sim, config, show_progress)
-        write_drive_info(tmp / "drive.json", DriveInfo(
-            name=f"{preset}-seed{seed}-drive{drive_index}",
-            start_pose=sim.frame_poses[0],
-            frame_rate=config.simulation.drive.frame_rate,
-            source={"generator": f"semslam {__version__}", "simulator": {
-                "preset": preset, "seed": seed, "drive": drive_index}},
-            observations=("exact", "noisy"),
-        ))
+        write_drive_info(
+            tmp / "drive.json",
+            DriveInfo(
+                name=f"{preset}-seed{seed}-drive{drive_index}",
+                start_pose=sim.frame_poses[0],
+                frame_rate=config.simulation.drive.frame_rate,
+                source={
+                    "generator": f"semslam {__version__}",
+                    "simulator": {"preset": preset, "seed": seed, "drive": drive_index},
+                },
+                observations=("exact", "noisy"),
+            ),
+        )
         atomic_write_text(tmp / "config.json", config_to_json(config))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -192,9 +212,16 @@ def simulate(out_dir: Path, preset: str, seed: int, drive_index: int, images: bo
     _commit_output(tmp, out_dir)
     steps = np.linalg.norm(np.diff(sim.frame_poses[:, :2], axis=0), axis=1)
     return SimulationSummary(
-        folder=out_dir, preset=preset, seed=seed, drive_index=drive_index,
+        folder=out_dir,
+        preset=preset,
+        seed=seed,
+        drive_index=drive_index,
         duration_s=float(sim.frame_times[-1] - sim.frame_times[0]),
-        distance_m=float(steps.sum()), frames=len(sim.frame_times),
-        slots=len(sim.world.slots), tags=len(sim.world.tags), markings=len(sim.world.markings),
-        images=images, seconds=time.perf_counter() - started,
+        distance_m=float(steps.sum()),
+        frames=len(sim.frame_times),
+        slots=len(sim.world.slots),
+        tags=len(sim.world.tags),
+        markings=len(sim.world.markings),
+        images=images,
+        seconds=time.perf_counter() - started,
     )

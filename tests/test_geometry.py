@@ -31,7 +31,9 @@ def test_wrap_angle_range_and_equivalence(a):
 def test_wrap_angle_boundaries():
     assert wrap_angle(math.pi) == math.pi
     assert wrap_angle(-math.pi) == math.pi
-    assert np.allclose(wrap_angle(np.array([0.0, 3 * math.pi, -3 * math.pi])), [0, math.pi, math.pi])
+    assert np.allclose(
+        wrap_angle(np.array([0.0, 3 * math.pi, -3 * math.pi])), [0, math.pi, math.pi]
+    )
 
 
 @given(poses, poses)
@@ -49,7 +51,9 @@ def test_transform_points_round_trip(p, pts):
     there = transform_points(p, pts)
     assert np.allclose(inverse_transform_points(p, there), pts, atol=1e-9)
     # distances are preserved
-    assert np.allclose(np.linalg.norm(there - there[0], axis=1), np.linalg.norm(pts - pts[0], axis=1))
+    assert np.allclose(
+        np.linalg.norm(there - there[0], axis=1), np.linalg.norm(pts - pts[0], axis=1)
+    )
 
 
 def test_transform_matches_compose():

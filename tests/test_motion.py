@@ -32,9 +32,7 @@ def test_ctrv_against_numerical_integration(w):
     assert np.allclose(ctrv_predict(state, dt)[:2], sol.y[:2, -1], atol=1e-8)
 
 
-@given(
-    st.floats(-3, 3), st.floats(0, 3), st.floats(-1.0, 1.0), st.sampled_from([0.02, 0.1, 0.5])
-)
+@given(st.floats(-3, 3), st.floats(0, 3), st.floats(-1.0, 1.0), st.sampled_from([0.02, 0.1, 0.5]))
 def test_ctrv_jacobian_matches_numerical(yaw, v, w, dt):
     state = np.array([0.5, 1.5, yaw, v, w])
     J = ctrv_jacobian(state, dt)

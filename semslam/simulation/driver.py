@@ -84,6 +84,8 @@ def drive_path(
         idx += int(np.argmin(np.sum((window - (x, y)) ** 2, axis=1)))
         if path.length - path.s[idx] < 0.5:
             break
+        if cfg.max_duration is not None and t > cfg.max_duration:
+            break
         lookahead = max(2.5, 1.2 * v)
         j = int(np.searchsorted(path.s, path.s[idx] + lookahead))
         j = min(j, len(path.points) - 1)

@@ -136,9 +136,13 @@ def _single_aisle_loop(world: World, y: float, west: float, east: float, mirror:
     def turnaround(x_edge: float, direction: float) -> list[tuple[float, float]]:
         # a lollipop loop in the free area beyond the rows (direction +1 east end, -1 west)
         d = direction
-        return [(x_edge + d * 1.0, y - d * lane), (x_edge + d * 8.0, y - d * 4.5),
-                (x_edge + d * 12.5, y), (x_edge + d * 8.0, y + d * 4.5),
-                (x_edge + d * 1.0, y + d * lane)]
+        return [
+            (x_edge + d * 1.0, y - d * lane),
+            (x_edge + d * 8.0, y - d * 4.5),
+            (x_edge + d * 12.5, y),
+            (x_edge + d * 8.0, y + d * 4.5),
+            (x_edge + d * 1.0, y + d * lane),
+        ]
 
     nodes = [(row_west + 2.0, y - lane)]
     nodes += turnaround(row_east, +1.0)

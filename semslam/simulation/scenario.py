@@ -56,7 +56,9 @@ def frame_seed(seed: int, drive_index: int, frame: int) -> int:
     return int(np.random.SeedSequence([seed, drive_index, frame, 3]).generate_state(1)[0])
 
 
-def simulate_drive(preset: str, seed: int, drive_index: int, config: SimulationConfig) -> SimulatedDrive:
+def simulate_drive(
+    preset: str, seed: int, drive_index: int, config: SimulationConfig
+) -> SimulatedDrive:
     """Build the world of (``preset``, ``seed``) and drive route ``drive_index`` through it.
 
     The seed fixes the world; the drive index picks the route, the speed
@@ -66,12 +68,15 @@ def simulate_drive(preset: str, seed: int, drive_index: int, config: SimulationC
     rig = default_rig()
     cfg = config.drive
     path = make_path(world, drive_index, cfg.lane_offset, cfg.turn_radius)
-    record = drive_path(path, cfg, config.odometry_noise,
-                        np.random.default_rng([seed, drive_index, 1]))
+    record = drive_path(
+        path, cfg, config.odometry_noise, np.random.default_rng([seed, drive_index, 1])
+    )
     exact_sensor = ExactSensor(world, rig, config.observation_noise)
-    noisy_sensor = NoisySensor(world, rig, config.observation_noise,
-                               np.random.default_rng([seed, drive_index, 2]))
-    exact = tuple(exact_sensor.observe(float(record.t[i]), record.poses[i])
-                  for i in record.frame_index)
+    noisy_sensor = NoisySensor(
+        world, rig, config.observation_noise, np.random.default_rng([seed, drive_index, 2])
+    )
+    exact = tuple(
+        exact_sensor.observe(float(record.t[i]), record.poses[i]) for i in record.frame_index
+    )
     noisy = tuple(noisy_sensor.corrupt(e) for e in exact)
     return SimulatedDrive(world, rig, record, exact, noisy, seed, drive_index)

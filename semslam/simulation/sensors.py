@@ -35,7 +35,12 @@ def clip_segment_to_square(a: FloatArray, b: FloatArray, half: float):
     """Liang-Barsky clip of segment a-b (2,) to the square |x|, |y| <= half; None if outside."""
     d = b - a
     t0, t1 = 0.0, 1.0
-    for p, q in ((-d[0], a[0] + half), (d[0], half - a[0]), (-d[1], a[1] + half), (d[1], half - a[1])):
+    for p, q in (
+        (-d[0], a[0] + half),
+        (d[0], half - a[0]),
+        (-d[1], a[1] + half),
+        (d[1], half - a[1]),
+    ):
         if abs(p) < 1e-12:
             if q < 0:
                 return None
@@ -61,8 +66,9 @@ def tag_observation_covariance(
     sr = cfg.tag_range_sigma_abs + cfg.tag_range_sigma_rel * r
     sb = math.radians(cfg.tag_bearing_sigma_deg)
     sy = math.radians(cfg.tag_yaw_sigma_deg)
-    J = np.array([[math.cos(b), -r * math.sin(b), 0.0], [math.sin(b), r * math.cos(b), 0.0],
-                  [0.0, 0.0, 1.0]])
+    J = np.array(
+        [[math.cos(b), -r * math.sin(b), 0.0], [math.sin(b), r * math.cos(b), 0.0], [0.0, 0.0, 1.0]]
+    )
     return J @ np.diag([sr * sr, sb * sb, sy * sy]) @ J.T
 
 
@@ -106,7 +112,9 @@ class ExactSensor:
                 continue
             if np.any((np.abs(ent[:, 0]) < ego_x) & (np.abs(ent[:, 1]) < ego_y)):
                 continue
-            out.append(SlotObservation(vC, slot.kind, slot.label, 1.0, 1.0, self.cfg.slot_exact_sigma))
+            out.append(
+                SlotObservation(vC, slot.kind, slot.label, 1.0, 1.0, self.cfg.slot_exact_sigma)
+            )
         return tuple(out)
 
     def _markings(self, mTv: FloatArray) -> tuple[MarkingObservation, ...]:
@@ -116,7 +124,10 @@ class ExactSensor:
             m = self.world.markings[i]
             vA, vB = inverse_transform_points(mTv, np.array([m.a, m.b]))
             clipped = clip_segment_to_square(vA, vB, self.half)
-            if clipped is None or np.linalg.norm(clipped[1] - clipped[0]) < self.cfg.marking_min_length:
+            if (
+                clipped is None
+                or np.linalg.norm(clipped[1] - clipped[0]) < self.cfg.marking_min_length
+            ):
                 continue
             out.append(MarkingObservation(clipped[0], clipped[1], m.width, 1.0))
         return tuple(out)
@@ -126,8 +137,13 @@ class ExactSensor:
         assert cam is not None
         cfg = self.cfg
         cam_v = cam.T_vehicle_camera[:3, 3]
-        cam_m = mTv[:2] + np.array([[math.cos(mTv[2]), -math.sin(mTv[2])],
-                                    [math.sin(mTv[2]), math.cos(mTv[2])]]) @ cam_v[:2]
+        cam_m = (
+            mTv[:2]
+            + np.array(
+                [[math.cos(mTv[2]), -math.sin(mTv[2])], [math.sin(mTv[2]), math.cos(mTv[2])]]
+            )
+            @ cam_v[:2]
+        )
         w, h = cam.size
         out = []
         for tag in self.world.tags:
@@ -142,10 +158,18 @@ class ExactSensor:
             vTt_xy = inverse_transform_points(mTv, tag.mTt[:2])
             side = np.array([-normal[1], normal[0]]) * tag.size / 2
             corners_m = [tag.mTt[:2] + s * side for s in (-1, 1)]
-            corners_3d = [np.append(inverse_transform_points(mTv, c), tag.height + dz)
-                          for c in corners_m for dz in (-tag.size / 2, tag.size / 2)]
+            corners_3d = [
+                np.append(inverse_transform_points(mTv, c), tag.height + dz)
+                for c in corners_m
+                for dz in (-tag.size / 2, tag.size / 2)
+            ]
             uv, z = cam.project_vehicle_points(np.array(corners_3d))
-            if np.any(z < 0.3) or np.any(uv < 2) or np.any(uv[:, 0] > w - 3) or np.any(uv[:, 1] > h - 3):
+            if (
+                np.any(z < 0.3)
+                or np.any(uv < 2)
+                or np.any(uv[:, 0] > w - 3)
+                or np.any(uv[:, 1] > h - 3)
+            ):
                 continue
             if np.ptp(uv[:, 0]) < cfg.tag_min_pixels and np.ptp(uv[:, 1]) < cfg.tag_min_pixels:
                 continue
@@ -171,14 +195,16 @@ class ExactSensor:
 class NoisySensor:
     """Corrupts exact observations the way a real detector would (see module docstring)."""
 
-    def __init__(self, world: World, rig: Rig, cfg: ObservationNoiseConfig,
-                 rng: np.random.Generator) -> None:
+    def __init__(
+        self, world: World, rig: Rig, cfg: ObservationNoiseConfig, rng: np.random.Generator
+    ) -> None:
         self.world, self.rig, self.cfg, self.rng = world, rig, cfg, rng
         self.half = rig.topview.half_extent_m
         self.labels = [s.label for s in world.slots if s.label]
         self._label_index = {s.label: i for i, s in enumerate(world.slots)}
-        self.camera_xy = (rig.cameras["front"].T_vehicle_camera[:2, 3]
-                          if "front" in rig.cameras else np.zeros(2))
+        self.camera_xy = (
+            rig.cameras["front"].T_vehicle_camera[:2, 3] if "front" in rig.cameras else np.zeros(2)
+        )
 
     def corrupt(self, exact: FrameObservations) -> FrameObservations:
         return FrameObservations(
@@ -206,10 +232,27 @@ class NoisySensor:
         rng = self.rng
         if rng.random() < 0.5 and true_label in self._label_index:
             i = self._label_index[true_label] + int(rng.choice([-2, -1, 1, 2]))
-            if 0 <= i < len(self.world.slots) and self.world.slots[i].label not in (None, true_label):
+            if 0 <= i < len(self.world.slots) and self.world.slots[i].label not in (
+                None,
+                true_label,
+            ):
                 return str(self.world.slots[i].label)
-        confusions = {"1": "7", "7": "1", "3": "8", "8": "3", "5": "6", "6": "5", "0": "8",
-                      "2": "Z", "B": "8", "E": "F", "F": "E", "4": "9", "9": "4", "Z": "2"}
+        confusions = {
+            "1": "7",
+            "7": "1",
+            "3": "8",
+            "8": "3",
+            "5": "6",
+            "6": "5",
+            "0": "8",
+            "2": "Z",
+            "B": "8",
+            "E": "F",
+            "F": "E",
+            "4": "9",
+            "9": "4",
+            "Z": "2",
+        }
         k = int(rng.integers(len(true_label)))
         ch = true_label[k]
         new = confusions.get(ch, "0123456789"[(int(ch, 36) + 1) % 10] if ch.isdigit() else "H")
@@ -225,9 +268,16 @@ class NoisySensor:
                 continue
             label, lconf = self._read_label(s.label)
             corners = s.vCorners + rng.normal(0.0, cfg.slot_corner_sigma, (4, 2))
-            out.append(SlotObservation(corners, s.kind, label, lconf,
-                                       self._confidence(cfg.detection_confidence_range),
-                                       max(cfg.slot_corner_sigma, 1e-3)))
+            out.append(
+                SlotObservation(
+                    corners,
+                    s.kind,
+                    label,
+                    lconf,
+                    self._confidence(cfg.detection_confidence_range),
+                    max(cfg.slot_corner_sigma, 1e-3),
+                )
+            )
         n_false = rng.poisson(cfg.slot_false_rate / (1 - cfg.slot_false_rate) * max(len(out), 0.5))
         for _ in range(n_false):
             out.append(self._false_slot(exact))
@@ -250,11 +300,20 @@ class NoisySensor:
             corners = local @ np.array([[c, s], [-s, c]]) + origin
             kind = SlotKind.PERPENDICULAR
         corners = corners + rng.normal(0.0, cfg.slot_corner_sigma, (4, 2))
-        label = str(self.labels[int(rng.integers(len(self.labels)))]) if rng.random() > cfg.id_missing_rate else None
+        label = (
+            str(self.labels[int(rng.integers(len(self.labels)))])
+            if rng.random() > cfg.id_missing_rate
+            else None
+        )
         lconf = self._confidence(cfg.label_confidence_range) if label else 0.0
-        return SlotObservation(corners, kind, label, lconf,
-                               self._confidence(cfg.detection_confidence_range),
-                               max(cfg.slot_corner_sigma, 1e-3))
+        return SlotObservation(
+            corners,
+            kind,
+            label,
+            lconf,
+            self._confidence(cfg.detection_confidence_range),
+            max(cfg.slot_corner_sigma, 1e-3),
+        )
 
     # -- markings
     def _markings(self, exact: tuple[MarkingObservation, ...]) -> tuple[MarkingObservation, ...]:
@@ -265,9 +324,12 @@ class NoisySensor:
                 continue
             a = m.vA + rng.normal(0.0, cfg.marking_endpoint_sigma, 2)
             b = m.vB + rng.normal(0.0, cfg.marking_endpoint_sigma, 2)
-            out.append(MarkingObservation(a, b, m.width,
-                                          self._confidence(cfg.detection_confidence_range)))
-        n_false = rng.poisson(cfg.marking_false_rate / (1 - cfg.marking_false_rate) * max(len(out), 0.5))
+            out.append(
+                MarkingObservation(a, b, m.width, self._confidence(cfg.detection_confidence_range))
+            )
+        n_false = rng.poisson(
+            cfg.marking_false_rate / (1 - cfg.marking_false_rate) * max(len(out), 0.5)
+        )
         for _ in range(n_false):
             a = rng.uniform(-self.half + 0.3, self.half - 0.3, 2)
             ang = rng.uniform(-math.pi, math.pi)
@@ -275,8 +337,14 @@ class NoisySensor:
             clipped = clip_segment_to_square(a, b, self.half)
             if clipped is None:
                 continue
-            out.append(MarkingObservation(clipped[0], clipped[1], float(rng.uniform(0.1, 0.25)),
-                                          self._confidence(cfg.detection_confidence_range)))
+            out.append(
+                MarkingObservation(
+                    clipped[0],
+                    clipped[1],
+                    float(rng.uniform(0.1, 0.25)),
+                    self._confidence(cfg.detection_confidence_range),
+                )
+            )
         return tuple(out)
 
     # -- tags
@@ -291,7 +359,9 @@ class NoisySensor:
             r += rng.normal(0.0, cfg.tag_range_sigma_abs + cfg.tag_range_sigma_rel * r)
             b += rng.normal(0.0, math.radians(cfg.tag_bearing_sigma_deg))
             yaw = wrap_angle(tag.vTt[2] + rng.normal(0.0, math.radians(cfg.tag_yaw_sigma_deg)))
-            vTt = np.array([self.camera_xy[0] + r * math.cos(b), self.camera_xy[1] + r * math.sin(b), yaw])
+            vTt = np.array(
+                [self.camera_xy[0] + r * math.cos(b), self.camera_xy[1] + r * math.sin(b), yaw]
+            )
             cov = tag_observation_covariance(vTt, self.camera_xy, cfg)
             out.append(TagObservation(tag.family, tag.tag_id, tag.size, vTt, tag.height, cov))
         return tuple(out)

@@ -133,8 +133,9 @@ class _Builder:
         for k in range(n):
             p0, p1 = junctions[k], junctions[k + 1]
             el, er = (p0, p1) if float(np.dot(p1 - p0, left)) < 0 else (p1, p0)
-            corners = np.array([el, er, er + sep * row.separator_length,
-                                el + sep * row.separator_length])
+            corners = np.array(
+                [el, er, er + sep * row.separator_length, el + sep * row.separator_length]
+            )
             slot_id = len(self.slots)
             self.slots.append(
                 Slot(slot_id, labels[k], 1.0, corners, np.zeros((4, 2, 2)), row.kind, 0)
@@ -142,8 +143,12 @@ class _Builder:
             centre_entrance = (p0 + p1) / 2.0
             text_h = rng.uniform(0.35, 0.55)
             self.paint.append(
-                SlotPaint(slot_id, centre_entrance + sep * (0.35 + text_h),
-                          math.atan2(sep[1], sep[0]), text_h)
+                SlotPaint(
+                    slot_id,
+                    centre_entrance + sep * (0.35 + text_h),
+                    math.atan2(sep[1], sep[0]),
+                    text_h,
+                )
             )
             if rng.random() < 0.45:
                 self.cars.append(self._parked_car(corners, row))
@@ -151,16 +156,35 @@ class _Builder:
     def _parked_car(self, corners: FloatArray, row: _RowGeometry) -> ParkedCar:
         rng = self.rng
         centre = corners.mean(axis=0) + rng.normal(0.0, 0.08, 2)
-        if row.kind is SlotKind.PARALLEL:
-            axis = corners[1] - corners[0]
-        else:
-            axis = corners[3] - corners[0]
-        yaw = math.atan2(axis[1], axis[0]) + rng.normal(0.0, 0.03) + (math.pi if rng.random() < 0.5 else 0.0)
-        palette = [(40, 40, 40), (200, 200, 205), (235, 235, 235), (50, 50, 150), (140, 90, 30),
-                   (30, 30, 30), (120, 120, 125), (40, 110, 40), (20, 60, 170), (160, 160, 60)]
+        # a parked car lies along the separators, or along the kerb in a parallel slot
+        long_side = (1, 0) if row.kind is SlotKind.PARALLEL else (3, 0)
+        axis = corners[long_side[0]] - corners[long_side[1]]
+        yaw = (
+            math.atan2(axis[1], axis[0])
+            + rng.normal(0.0, 0.03)
+            + (math.pi if rng.random() < 0.5 else 0.0)
+        )
+        palette = [
+            (40, 40, 40),
+            (200, 200, 205),
+            (235, 235, 235),
+            (50, 50, 150),
+            (140, 90, 30),
+            (30, 30, 30),
+            (120, 120, 125),
+            (40, 110, 40),
+            (20, 60, 170),
+            (160, 160, 60),
+        ]
         colour = palette[int(rng.integers(len(palette)))]
-        return ParkedCar(centre, float(yaw), rng.uniform(4.1, 4.8), rng.uniform(1.72, 1.9),
-                         rng.uniform(1.42, 1.65), colour)
+        return ParkedCar(
+            centre,
+            float(yaw),
+            rng.uniform(4.1, 4.8),
+            rng.uniform(1.72, 1.9),
+            rng.uniform(1.42, 1.65),
+            colour,
+        )
 
 
 def _row_labels(rng: np.random.Generator, row_index: int, count: int, letter: str) -> list[str]:
@@ -192,8 +216,14 @@ def make_world(preset: str = "garage", seed: int = 0) -> World:
         if a > 0:
             rear_pillar_ys.append(y)
         below = _row_geometry(below_kind, rng, 0.0, -1)
-        below = _RowGeometry(below.kind, y + below.depth, -1, below.slot_width,
-                             below.separator_angle, below.separator_length)
+        below = _RowGeometry(
+            below.kind,
+            y + below.depth,
+            -1,
+            below.slot_width,
+            below.separator_angle,
+            below.separator_length,
+        )
         aisle_centres.append(below.entrance_y + AISLE_WIDTH / 2.0)
         above = _row_geometry(above_kind, rng, below.entrance_y + AISLE_WIDTH, +1)
         rows += [below, above]
@@ -212,12 +242,19 @@ def make_world(preset: str = "garage", seed: int = 0) -> World:
     corners = [np.array(c) for c in ((xmin, ymin), (xmax, ymin), (xmax, ymax), (xmin, ymax))]
     walls = tuple(Wall(corners[i], corners[(i + 1) % 4], 3.0) for i in range(4))
     cx_west, cx_east = -spec.cross_width / 2.0, length + spec.cross_width / 2.0
-    aisles = [Aisle(np.array([cx_west, c]), np.array([cx_east, c]), AISLE_WIDTH)
-              for c in reversed(aisle_centres)]  # aisle 0 at the top
+    aisles = [
+        Aisle(np.array([cx_west, c]), np.array([cx_east, c]), AISLE_WIDTH)
+        for c in reversed(aisle_centres)
+    ]  # aisle 0 at the top
     if spec.n_aisles > 1:
         for cx in (cx_west, cx_east):
-            aisles.append(Aisle(np.array([cx, aisle_centres[0]]),
-                                np.array([cx, aisle_centres[-1]]), spec.cross_width))
+            aisles.append(
+                Aisle(
+                    np.array([cx, aisle_centres[0]]),
+                    np.array([cx, aisle_centres[-1]]),
+                    spec.cross_width,
+                )
+            )
     return World(
         preset=preset,
         seed=seed,
@@ -243,7 +280,10 @@ def _pillars_and_tag_faces(rows, rear_ys, length, rng):
     half = PILLAR_SIDE / 2.0
     for row in rows:
         y = row.entrance_y + row.normal * min(1.5, row.depth / 2.0)
-        for x, face_yaw in ((ROW_END_MARGIN / 2.0 - 0.1, 0.0), (length - ROW_END_MARGIN / 2.0 + 0.1, math.pi)):
+        for x, face_yaw in (
+            (ROW_END_MARGIN / 2.0 - 0.1, 0.0),
+            (length - ROW_END_MARGIN / 2.0 + 0.1, math.pi),
+        ):
             centre = np.array([x, y])
             pillars.append(Pillar(centre, PILLAR_SIDE, 3.0))
             normal = np.array([math.cos(face_yaw), math.sin(face_yaw)])
@@ -266,9 +306,16 @@ def _place_tags(faces, n_tags, rng) -> list[Tag]:
     tags = []
     for tag_id, i in zip(ids, chosen, strict=True):
         centre, yaw, _ = faces[i]
-        tags.append(Tag(TagFamily.TAG36H11, int(tag_id), 0.5,
-                        np.array([centre[0], centre[1], yaw]), float(rng.uniform(1.4, 1.9)),
-                        np.zeros((3, 3))))
+        tags.append(
+            Tag(
+                TagFamily.TAG36H11,
+                int(tag_id),
+                0.5,
+                np.array([centre[0], centre[1], yaw]),
+                float(rng.uniform(1.4, 1.9)),
+                np.zeros((3, 3)),
+            )
+        )
     return tags
 
 

@@ -31,7 +31,7 @@ def test_another_drive_index_takes_another_route(small_drive):
 
 def test_speeds_and_rates(small_drive):
     rec = small_drive.record
-    assert 0.99 <= rec.speed.min() and rec.speed.max() <= 3.01
+    assert rec.speed.min() >= 0.99 and rec.speed.max() <= 3.01
     assert np.allclose(np.diff(small_drive.frame_times), 0.1)
 
 
@@ -84,7 +84,9 @@ def test_noisy_observations_follow_the_configured_rates():
     for pose, frame in zip(sim.frame_poses, sim.noisy, strict=True):
         for obs in frame.slots:
             centre = transform_points(pose, obs.vCorners).mean(axis=0)
-            nearest = min(sim.world.slots, key=lambda s: np.linalg.norm(s.corners.mean(axis=0) - centre))
+            nearest = min(
+                sim.world.slots, key=lambda s: np.linalg.norm(s.corners.mean(axis=0) - centre)
+            )
             d = transform_points(pose, obs.vCorners) - nearest.corners
             if np.abs(d).max() > 0.3:
                 false += 1

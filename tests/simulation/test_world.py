@@ -20,10 +20,15 @@ def test_large_preset_has_about_2000_slots():
 
 def test_same_seed_same_world_other_seed_other_world():
     a, b, c = make_world("garage", 5), make_world("garage", 5), make_world("garage", 6)
-    assert np.array_equal(np.array([s.corners for s in a.slots]), np.array([s.corners for s in b.slots]))
+    assert np.array_equal(
+        np.array([s.corners for s in a.slots]), np.array([s.corners for s in b.slots])
+    )
     assert [s.label for s in a.slots] == [s.label for s in b.slots]
-    assert [s.label for s in a.slots] != [s.label for s in c.slots] or a.line_colour != c.line_colour or \
-        not np.allclose(a.markings[0].width, c.markings[0].width)
+    assert (
+        [s.label for s in a.slots] != [s.label for s in c.slots]
+        or a.line_colour != c.line_colour
+        or not np.allclose(a.markings[0].width, c.markings[0].width)
+    )
 
 
 def test_garage_mixes_slot_kinds_and_labels_are_unique_and_short():

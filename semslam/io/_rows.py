@@ -1,0 +1,89 @@
+"""Helpers for line-oriented numeric files (CSV tables, TUM trajectories)."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from semslam.errors import SemslamError
+from semslam.geometry import FloatArray
+
+
+def parse_number(token: str, where: str, name: str, error: type[SemslamError]) -> float:
+    """A finite float from ``token``.
+
+    Raises:
+        error: ``"<where>: <name> is not a number ('abc')"`` or ``"<where>: <name> is NaN"``.
+    """
+    try:
+        value = float(token)
+    except ValueError:
+        shown = token.strip() or "empty"
+        raise error(f"{where}: {name} is not a number ({shown!r})") from None
+    if math.isnan(value):
+        raise error(f"{where}: {name} is NaN")
+    if math.isinf(value):
+        raise error(f"{where}: {name} is infinite")
+    return value
+
+
+def check_time_order(
+    previous: float | None, t: float, where: str, error: type[SemslamError]
+) -> None:
+    """Refuse a time stamp that does not come strictly after ``previous``.
+
+    Raises:
+        error: ``"<where>: time goes backwards (12.300 after 12.400)"`` or
+            ``"<where>: time repeats (12.400)"``.
+    """
+    if previous is None or t > previous:
+        return
+    if t == previous:
+        raise error(f"{where}: time repeats ({format_time(t)})")
+    a, b = _distinct(t, previous)
+    raise error(f"{where}: time goes backwards ({a} after {b})")
+
+
+def format_time(t: float) -> str:
+    """A time stamp in seconds with three decimals."""
+    return f"{t:.3f}"
+
+
+def _distinct(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` printed with the fewest decimals (at least 3) that tell them apart."""
+    for decimals in range(3, 10):
+        sa, sb = f"{a:.{decimals}f}", f"{b:.{decimals}f}"
+        if sa != sb:
+            return sa, sb
+    return repr(a), repr(b)
+
+
+def check_times(
+    t: FloatArray, path: str | os.PathLike[str], error: type[SemslamError], what: str = "row"
+) -> None:
+    """Refuse non-finite or not strictly increasing times before writing ``path``.
+
+    Raises:
+        error: ``"<path>: row 3: time goes backwards (...)"`` (rows counted from 0).
+    """
+    name = os.fspath(path)
+    check_finite_columns({"time": t}, path, error, what)
+    stalls = np.flatnonzero(np.diff(t) <= 0)
+    if stalls.size:
+        i = int(stalls[0]) + 1
+        check_time_order(float(t[i - 1]), float(t[i]), f"{name}: {what} {i}", error)
+
+
+def check_finite_columns(
+    columns: dict[str, FloatArray],
+    path: str | os.PathLike[str],
+    error: type[SemslamError],
+    what: str = "row",
+) -> None:
+    """Refuse NaN or infinity in any column before writing ``path``."""
+    for name, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise error(f"{os.fspath(path)}: {what} {bad[0]}: {name} is {values[bad[0]]}")

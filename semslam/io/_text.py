@@ -1,0 +1,27 @@
+"""Reading a whole text file with every failure turned into a semslam error."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from semslam.errors import SemslamError
+
+
+def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
+    """The content of ``path`` decoded as UTF-8 (a leading BOM is dropped).
+
+    Raises:
+        error: the file is missing, unreadable or not UTF-8; the message names the file.
+    """
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise error(f"{os.fspath(path)}: file not found") from None
+    except OSError as exc:
+        raise error(f"{os.fspath(path)}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise error(f"{os.fspath(path)} line {line}: not UTF-8 text") from None

@@ -1,0 +1,192 @@
+"""The map file: versioned JSON validated against ``semslam/schemas/map.schema.json``.
+
+Layout (map frame, metres and radians)::
+
+    {"format": "semslam-map", "version": 1,
+     "metadata": {"generator": ..., "version": ..., "created": ..., "source": ...,
+                  "statistics": {...}},
+     "slots": [{"id", "label", "label_confidence", "corners" [4][2],
+                "corner_covariances" [4][2][2], "kind", "observations"}],
+     "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
+     "markings": [{"a" [2], "b" [2], "width"}]}
+
+Every load checks, in order: JSON syntax, finite numbers, the format
+string, the version, the schema, unique slot IDs. Each failure is a
+:class:`~semslam.errors.MapError` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from semslam.errors import MapError
+from semslam.io._fields import Field
+from semslam.io._json import (
+    dumps_pretty,
+    find_non_finite,
+    non_finite_message,
+    parse_json,
+    to_jsonable,
+)
+from semslam.io._schema import validate
+from semslam.io._text import read_text
+from semslam.io.atomic import atomic_write_text
+from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag, TagFamily
+
+MAP_FORMAT = "semslam-map"
+MAP_VERSION = 1
+
+
+def map_to_dict(semantic_map: SemanticMap) -> dict[str, Any]:
+    """The JSON document of a map (plain Python values; numpy converted).
+
+    Raises:
+        TypeError: the metadata holds a value JSON cannot store (a bug in the caller).
+    """
+    return {
+        "format": MAP_FORMAT,
+        "version": MAP_VERSION,
+        "metadata": to_jsonable(dict(semantic_map.metadata), "metadata"),
+        "slots": [_slot_to_dict(s) for s in semantic_map.slots],
+        "tags": [_tag_to_dict(t) for t in semantic_map.tags],
+        "markings": [_marking_to_dict(m) for m in semantic_map.markings],
+    }
+
+
+def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
+    """A map from its JSON document, fully checked.
+
+    Args:
+        document: the parsed JSON.
+        source: name used in error messages (the file path).
+
+    Raises:
+        MapError: wrong format or version, a schema violation, NaN/infinity,
+            or duplicate slot IDs; the message names ``source`` and the field.
+    """
+    check_map_document(document, source)
+    root = Field(document, source, MapError)
+    slots = tuple(_slot_from_field(f) for f in root["slots"].items())
+    seen: dict[int, int] = {}
+    for i, slot in enumerate(slots):
+        if slot.id in seen:
+            raise MapError(
+                f"{source}: slots/{i}/id: duplicate id {slot.id} (also slots/{seen[slot.id]})"
+            )
+        seen[slot.id] = i
+    return SemanticMap(
+        slots=slots,
+        tags=tuple(_tag_from_field(f) for f in root["tags"].items()),
+        markings=tuple(_marking_from_field(f) for f in root["markings"].items()),
+        metadata=dict(document["metadata"]),
+    )
+
+
+def check_map_document(document: Any, source: str = "<dict>") -> None:
+    """Check a map document without building the map (see :func:`map_from_dict`)."""
+    if not isinstance(document, dict):
+        raise MapError(f"{source}: expected a JSON object at the top level")
+    bad = find_non_finite(document)
+    if bad is not None:
+        raise MapError(f"{source}: {non_finite_message(*bad)}")
+    fmt = document.get("format")
+    if fmt != MAP_FORMAT:
+        got = "missing" if fmt is None else repr(fmt)
+        raise MapError(f"{source}: format is {got}, expected '{MAP_FORMAT}'")
+    version = document.get("version")
+    if isinstance(version, int) and not isinstance(version, bool) and version > MAP_VERSION:
+        raise MapError(
+            f"{source}: version {version} is newer than this semslam reads ({MAP_VERSION})"
+        )
+    validate(document, "map", source, MapError)
+
+
+def save_map(path: str | os.PathLike[str], semantic_map: SemanticMap) -> None:
+    """Write a map as pretty JSON, atomically, after checking it against the schema.
+
+    Raises:
+        MapError: the map would not load back (NaN, bad shapes...); nothing is written.
+    """
+    document = map_to_dict(semantic_map)
+    map_from_dict(document, os.fspath(path))
+    atomic_write_text(path, dumps_pretty(document))
+
+
+def load_map(path: str | os.PathLike[str]) -> SemanticMap:
+    """Read and check a map file.
+
+    Raises:
+        MapError: missing or unreadable file, broken JSON, or any problem
+            listed in :func:`map_from_dict`.
+    """
+    source = os.fspath(path)
+    return map_from_dict(parse_json(read_text(path, MapError), source, MapError), source)
+
+
+# --------------------------------------------------------------------------- elements
+
+
+def _slot_to_dict(slot: Slot) -> dict[str, Any]:
+    return {
+        "id": int(slot.id),
+        "label": slot.label,
+        "label_confidence": float(slot.label_confidence),
+        "corners": np.asarray(slot.corners, dtype=float).tolist(),
+        "corner_covariances": np.asarray(slot.corner_covariances, dtype=float).tolist(),
+        "kind": SlotKind(slot.kind).value,
+        "observations": int(slot.observations),
+    }
+
+
+def _slot_from_field(f: Field) -> Slot:
+    return Slot(
+        id=f["id"].integer(),
+        label=f["label"].optional_string(),
+        label_confidence=f["label_confidence"].number(0.0, 1.0),
+        corners=f["corners"].array((4, 2)),
+        corner_covariances=f["corner_covariances"].array((4, 2, 2)),
+        kind=f["kind"].choice(SlotKind),
+        observations=f["observations"].integer(0),
+    )
+
+
+def _tag_to_dict(tag: Tag) -> dict[str, Any]:
+    x, y, yaw = (float(v) for v in np.asarray(tag.mTt, dtype=float).reshape(3))
+    return {
+        "family": TagFamily(tag.family).value,
+        "id": int(tag.tag_id),
+        "size": float(tag.size),
+        "x": x,
+        "y": y,
+        "yaw": yaw,
+        "height": float(tag.height),
+        "covariance": np.asarray(tag.covariance, dtype=float).tolist(),
+    }
+
+
+def _tag_from_field(f: Field) -> Tag:
+    return Tag(
+        family=f["family"].choice(TagFamily),
+        tag_id=f["id"].integer(0),
+        size=f["size"].number(positive=True),
+        mTt=np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
+        height=f["height"].number(),
+        covariance=f["covariance"].array((3, 3)),
+    )
+
+
+def _marking_to_dict(marking: Marking) -> dict[str, Any]:
+    return {
+        "a": np.asarray(marking.a, dtype=float).tolist(),
+        "b": np.asarray(marking.b, dtype=float).tolist(),
+        "width": float(marking.width),
+    }
+
+
+def _marking_from_field(f: Field) -> Marking:
+    return Marking(
+        a=f["a"].array((2,)), b=f["b"].array((2,)), width=f["width"].number(positive=True)
+    )

@@ -1,0 +1,190 @@
+"""Per-frame observations as JSON Lines: one :class:`FrameObservations` per line.
+
+Everything is in the vehicle frame (x forward, y left), metres and radians::
+
+    {"t": 12.3,
+     "slots": [{"corners": [[x, y] x4], "kind", "label", "label_confidence",
+                "confidence", "corner_sigma"}],
+     "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
+     "markings": [{"a": [x, y], "b": [x, y], "width", "confidence"}]}
+
+Missing ``slots``/``tags``/``markings`` lists mean none were seen. Times
+strictly increase from line to line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from semslam.errors import FormatError
+from semslam.io._fields import Field
+from semslam.io._json import find_non_finite, first_line, non_finite_message
+from semslam.io._rows import check_time_order
+from semslam.io._text import read_text
+from semslam.io.atomic import atomic_write_text
+from semslam.types import (
+    FrameObservations,
+    MarkingObservation,
+    SlotKind,
+    SlotObservation,
+    TagFamily,
+    TagObservation,
+)
+
+
+def frame_observations_to_dict(frame: FrameObservations) -> dict[str, Any]:
+    """The JSON object of one frame (plain Python values)."""
+    return {
+        "t": float(frame.t),
+        "slots": [_slot_to_dict(s) for s in frame.slots],
+        "tags": [_tag_to_dict(s) for s in frame.tags],
+        "markings": [_marking_to_dict(m) for m in frame.markings],
+    }
+
+
+def frame_observations_from_dict(document: Any, source: str = "<dict>") -> FrameObservations:
+    """One frame from its JSON object.
+
+    Args:
+        document: the parsed JSON object.
+        source: where it came from, for messages (``"obs.jsonl line 4"``).
+
+    Raises:
+        FormatError: a missing or mistyped field, NaN/infinity, a value out of
+            range; the message names ``source`` and the field (``slots/0/corners``).
+    """
+    bad = find_non_finite(document)
+    if bad is not None:
+        raise FormatError(f"{source}: {non_finite_message(*bad)}")
+    root = Field(document, source, FormatError)
+    root.obj()
+    return FrameObservations(
+        t=root["t"].number(),
+        slots=tuple(_slot_from_field(f) for f in _list(root, "slots")),
+        tags=tuple(_tag_from_field(f) for f in _list(root, "tags")),
+        markings=tuple(_marking_from_field(f) for f in _list(root, "markings")),
+    )
+
+
+def write_observations(path: str | os.PathLike[str], frames: Iterable[FrameObservations]) -> None:
+    """Write frames as JSON Lines, atomically.
+
+    Raises:
+        FormatError: a frame would not read back (NaN, a wrong shape, a value
+            out of range) or times do not strictly increase; nothing is written.
+    """
+    name = os.fspath(path)
+    lines: list[str] = []
+    previous: float | None = None
+    for i, frame in enumerate(frames):
+        document = frame_observations_to_dict(frame)
+        frame_observations_from_dict(document, f"{name}: frame {i}")  # would it read back?
+        check_time_order(previous, document["t"], f"{name}: frame {i}", FormatError)
+        previous = document["t"]
+        lines.append(json.dumps(document, separators=(",", ":"), allow_nan=False))
+    atomic_write_text(path, "".join(line + "\n" for line in lines))
+
+
+def read_observations(path: str | os.PathLike[str]) -> list[FrameObservations]:
+    """Read a JSON Lines file of frames (blank lines are skipped; an empty file is no frames).
+
+    Raises:
+        FormatError: missing file, a line that is not JSON (e.g. a truncated
+            last line), a bad field, or time not strictly increasing; the
+            message names the file, the line and the field.
+    """
+    name = os.fspath(path)
+    frames: list[FrameObservations] = []
+    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
+        if not line.strip():
+            continue
+        where = f"{name} line {lineno}"
+        try:
+            document = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise FormatError(f"{where}: not valid JSON at column {exc.colno}: {exc.msg}") from None
+        except (ValueError, RecursionError) as exc:
+            raise FormatError(f"{where}: not valid JSON: {first_line(exc)}") from None
+        frame = frame_observations_from_dict(document, where)
+        check_time_order(frames[-1].t if frames else None, frame.t, where, FormatError)
+        frames.append(frame)
+    return frames
+
+
+# --------------------------------------------------------------------------- elements
+
+
+def _list(root: Field, key: str) -> list[Field]:
+    field = root.get(key)
+    return [] if field is None else field.items()
+
+
+def _slot_to_dict(slot: SlotObservation) -> dict[str, Any]:
+    return {
+        "corners": np.asarray(slot.vCorners, dtype=float).tolist(),
+        "kind": SlotKind(slot.kind).value,
+        "label": slot.label,
+        "label_confidence": float(slot.label_confidence),
+        "confidence": float(slot.confidence),
+        "corner_sigma": float(slot.corner_sigma),
+    }
+
+
+def _slot_from_field(f: Field) -> SlotObservation:
+    label = f.get("label")
+    return SlotObservation(
+        vCorners=f["corners"].array((4, 2)),
+        kind=f["kind"].choice(SlotKind),
+        label=None if label is None else label.string(),
+        label_confidence=f["label_confidence"].number(0.0, 1.0),
+        confidence=f["confidence"].number(0.0, 1.0),
+        corner_sigma=f["corner_sigma"].number(minimum=0.0),
+    )
+
+
+def _tag_to_dict(tag: TagObservation) -> dict[str, Any]:
+    x, y, yaw = (float(v) for v in np.asarray(tag.vTt, dtype=float).reshape(3))
+    return {
+        "family": TagFamily(tag.family).value,
+        "id": int(tag.tag_id),
+        "size": float(tag.size),
+        "x": x,
+        "y": y,
+        "yaw": yaw,
+        "height": float(tag.height),
+        "covariance": np.asarray(tag.covariance, dtype=float).tolist(),
+    }
+
+
+def _tag_from_field(f: Field) -> TagObservation:
+    return TagObservation(
+        family=f["family"].choice(TagFamily),
+        tag_id=f["id"].integer(0),
+        size=f["size"].number(positive=True),
+        vTt=np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
+        height=f["height"].number(),
+        covariance=f["covariance"].array((3, 3)),
+    )
+
+
+def _marking_to_dict(marking: MarkingObservation) -> dict[str, Any]:
+    return {
+        "a": np.asarray(marking.vA, dtype=float).tolist(),
+        "b": np.asarray(marking.vB, dtype=float).tolist(),
+        "width": float(marking.width),
+        "confidence": float(marking.confidence),
+    }
+
+
+def _marking_from_field(f: Field) -> MarkingObservation:
+    return MarkingObservation(
+        vA=f["a"].array((2,)),
+        vB=f["b"].array((2,)),
+        width=f["width"].number(positive=True),
+        confidence=f["confidence"].number(0.0, 1.0),
+    )

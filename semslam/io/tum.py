@@ -1,0 +1,92 @@
+"""TUM trajectories, as evo reads them: one pose per line, ``t x y z qx qy qz qw``.
+
+Poses here are planar: ``(x, y, yaw)`` in metres and radians; the file has
+z = 0 and the quaternion of a rotation by yaw about +z. Time in seconds
+with 6 decimals, positions with 6 (a micrometre), quaternions with 9.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from semslam.errors import FormatError
+from semslam.geometry import FloatArray, quaternion_to_yaw, yaw_to_quaternion
+from semslam.io._rows import check_finite_columns, check_time_order, check_times, parse_number
+from semslam.io._text import read_text
+from semslam.io.atomic import atomic_write_text
+
+TUM_HEADER = "# t x y z qx qy qz qw"
+_COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
+
+
+def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> None:
+    """Write a planar trajectory as a TUM file, atomically.
+
+    Args:
+        path: target file.
+        t: (N,) strictly increasing times, seconds.
+        poses: (N, 3) poses ``(x, y, yaw)`` in the map frame, metres and radians.
+
+    Raises:
+        FormatError: shapes disagree, no poses, a value is NaN/infinite or time does not increase.
+    """
+    times = np.asarray(t, dtype=float)
+    p = np.asarray(poses, dtype=float)
+    if times.ndim != 1 or p.shape != (times.shape[0], 3):
+        raise FormatError(
+            f"{os.fspath(path)}: expected t (N,) and poses (N, 3), got {times.shape} and {p.shape}"
+        )
+    if times.shape[0] == 0:
+        raise FormatError(f"{os.fspath(path)}: no poses to write (empty trajectory)")
+    check_finite_columns({"x": p[:, 0], "y": p[:, 1], "yaw": p[:, 2]}, path, FormatError, "pose")
+    check_times(times, path, FormatError, "pose")
+    lines = [TUM_HEADER]
+    for ti, (x, y, yaw) in zip(times, p, strict=True):
+        qx, qy, qz, qw = yaw_to_quaternion(float(yaw))
+        lines.append(f"{ti:.6f} {x:.6f} {y:.6f} 0.000000 {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}")
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
+    """Read a TUM trajectory; '#' comments and blank lines are skipped; z, roll and pitch
+    are dropped.
+
+    Returns:
+        ``(t, poses)``: (N,) times in seconds and (N, 3) poses ``(x, y, yaw)``,
+        yaw wrapped to (-pi, pi].
+
+    Raises:
+        FormatError: missing file, no poses, wrong column count, a non-number,
+            NaN/infinity, a zero quaternion or time not strictly increasing;
+            the message names the file and line.
+    """
+    name = os.fspath(path)
+    rows: list[tuple[float, float, float, float]] = []
+    previous: float | None = None
+    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        where = f"{name} line {lineno}"
+        tokens = text.split()
+        if len(tokens) != len(_COLUMNS):
+            raise FormatError(
+                f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}"
+            )
+        t, x, y, _z, qx, qy, qz, qw = (
+            parse_number(tok, where, col, FormatError)
+            for tok, col in zip(tokens, _COLUMNS, strict=True)
+        )
+        if math.hypot(qx, qy, qz, qw) < 1e-9:
+            raise FormatError(f"{where}: quaternion has zero length")
+        check_time_order(previous, t, where, FormatError)
+        previous = t
+        rows.append((t, x, y, quaternion_to_yaw(qx, qy, qz, qw)))
+    if not rows:
+        raise FormatError(f"{name}: no poses (empty trajectory)")
+    data = np.array(rows, dtype=float)
+    return data[:, 0].copy(), data[:, 1:].copy()

@@ -1,0 +1,51 @@
+import os
+from pathlib import Path
+
+import pytest
+
+from semslam.io import atomic_write_bytes, atomic_write_text
+
+
+def test_writes_and_creates_parent(tmp_path: Path) -> None:
+    target = tmp_path / "a" / "b" / "out.txt"
+    atomic_write_text(target, "hello\n")
+    assert target.read_text() == "hello\n"
+    atomic_write_bytes(target, b"\x00\x01")
+    assert target.read_bytes() == b"\x00\x01"
+    assert os.listdir(target.parent) == ["out.txt"]
+
+
+def test_failed_replace_keeps_old_content(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "map.json"
+    target.write_text("old")
+
+    def broken_replace(src: object, dst: object) -> None:
+        raise OSError("disk on fire")
+
+    monkeypatch.setattr(os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk on fire"):
+        atomic_write_text(target, "new")
+    assert target.read_text() == "old"
+    assert os.listdir(tmp_path) == ["map.json"]  # the temporary file is gone
+
+
+def test_failed_write_keeps_old_content(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "odometry.csv"
+    target.write_text("old")
+
+    def broken_fsync(fd: int) -> None:
+        raise OSError("I/O error")
+
+    monkeypatch.setattr(os, "fsync", broken_fsync)
+    with pytest.raises(OSError):
+        atomic_write_bytes(target, b"new" * 1000)
+    assert target.read_text() == "old"
+    assert os.listdir(tmp_path) == ["odometry.csv"]
+
+
+def test_new_file_gets_ordinary_permissions(tmp_path: Path) -> None:
+    target = tmp_path / "x.txt"
+    atomic_write_text(target, "x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask

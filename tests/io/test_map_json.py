@@ -1,0 +1,180 @@
+import json
+import re
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from conftest import make_map
+
+from semslam.errors import FormatError, MapError
+from semslam.io import load_map, map_from_dict, map_to_dict, save_map
+from semslam.io._schema import load_schema
+from semslam.types import SemanticMap, SlotKind, TagFamily
+
+
+def _saved(tmp_path: Path) -> tuple[Path, dict]:
+    path = tmp_path / "map.json"
+    save_map(path, make_map())
+    return path, json.loads(path.read_text())
+
+
+def _write(path: Path, document: dict) -> None:
+    path.write_text(json.dumps(document))
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    original = make_map()
+    path = tmp_path / "out" / "map.json"
+    save_map(path, original)
+    loaded = load_map(path)
+    assert map_to_dict(loaded) == map_to_dict(original)
+    assert loaded.slots[0].corners.shape == (4, 2)
+    assert loaded.slots[0].corner_covariances.shape == (4, 2, 2)
+    assert loaded.slots[1].label is None
+    assert loaded.tags[0].family is TagFamily.TAG36H11
+    assert loaded.slots[0].kind is SlotKind.PERPENDICULAR
+    np.testing.assert_array_equal(loaded.tags[0].mTt, original.tags[0].mTt)
+    assert loaded.metadata["statistics"]["rmse"] == 0.031
+
+
+def test_empty_map_round_trip(tmp_path: Path) -> None:
+    save_map(tmp_path / "map.json", SemanticMap())
+    loaded = load_map(tmp_path / "map.json")
+    assert loaded.slots == () and loaded.tags == () and loaded.markings == ()
+
+
+def test_file_is_pretty_and_has_header(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    assert document["format"] == "semslam-map" and document["version"] == 1
+    assert path.read_text().count("\n") > 20
+
+
+def test_schema_is_valid_and_matches_enums() -> None:
+    schema = load_schema("map")
+    jsonschema.Draft202012Validator.check_schema(schema)
+    defs = schema["$defs"]
+    assert set(defs["tag"]["properties"]["family"]["enum"]) == {f.value for f in TagFamily}
+    assert set(defs["slot"]["properties"]["kind"]["enum"]) == {k.value for k in SlotKind}
+
+
+def test_saved_file_validates_against_schema(tmp_path: Path) -> None:
+    _, document = _saved(tmp_path)
+    jsonschema.validate(document, load_schema("map"))
+
+
+def test_truncated_json(tmp_path: Path) -> None:
+    path, _ = _saved(tmp_path)
+    text = path.read_text()
+    path.write_text(text[: len(text) // 2])
+    with pytest.raises(MapError) as err:
+        load_map(path)
+    msg = str(err.value)
+    assert str(path) in msg and "line" in msg and "truncated" in msg and "\n" not in msg
+
+
+def test_not_json(tmp_path: Path) -> None:
+    path = tmp_path / "map.json"
+    path.write_text('{"format": "semslam-map",\n  oops}')
+    with pytest.raises(MapError, match=r"map\.json: not valid JSON at line 2 column 3"):
+        load_map(path)
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(MapError, match=r"nothere\.json: file not found"):
+        load_map(tmp_path / "nothere.json")
+
+
+def test_wrong_format(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    document["format"] = "semslam-rig"
+    _write(path, document)
+    with pytest.raises(
+        MapError, match=r"map\.json: format is 'semslam-rig', expected 'semslam-map'"
+    ):
+        load_map(path)
+
+
+def test_newer_version(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    document["version"] = 2
+    _write(path, document)
+    with pytest.raises(MapError) as err:
+        load_map(path)
+    assert str(err.value) == f"{path}: version 2 is newer than this semslam reads (1)"
+
+
+def test_schema_violation_names_field(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    document["slots"][1]["corners"] = document["slots"][1]["corners"][:3]
+    _write(path, document)
+    with pytest.raises(MapError) as err:
+        load_map(path)
+    assert str(err.value) == f"{path}: slots/1/corners: expected 4 items, got 3"
+
+
+@pytest.mark.parametrize(
+    ("mutate", "pointer"),
+    [
+        (lambda d: d["slots"][0].update(kind="diagonal"), "slots/0/kind"),
+        (lambda d: d["slots"][0].update(label_confidence=1.5), "slots/0/label_confidence"),
+        (lambda d: d["slots"][0].pop("id"), "slots/0"),
+        (lambda d: d["tags"][0].update(size=0), "tags/0/size"),
+        (lambda d: d["tags"][0].update(family="qr"), "tags/0/family"),
+        (lambda d: d["tags"][0]["covariance"].pop(), "tags/0/covariance"),
+        (lambda d: d["markings"][0].update(width=-1), "markings/0/width"),
+        (lambda d: d["markings"][0].update(a=[1, "x"]), "markings/0/a/1"),
+        (lambda d: d["metadata"].update(created=5), "metadata/created"),
+        (lambda d: d.update(extra=1), "(top level)"),
+    ],
+)
+def test_schema_violations(tmp_path: Path, mutate, pointer: str) -> None:
+    path, document = _saved(tmp_path)
+    mutate(document)
+    _write(path, document)
+    with pytest.raises(MapError, match="^" + re.escape(f"{path}: {pointer}: ")) as err:
+        load_map(path)
+    assert "\n" not in str(err.value) and len(str(err.value)) < len(str(path)) + 150
+
+
+def test_nan_is_refused_with_field(tmp_path: Path) -> None:
+    path, _ = _saved(tmp_path)
+    path.write_text(path.read_text().replace('"height": 1.1', '"height": NaN'))
+    with pytest.raises(MapError, match=r"map\.json: tags/0/height: NaN is not allowed"):
+        load_map(path)
+
+
+def test_duplicate_slot_ids(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    document["slots"][1]["id"] = document["slots"][0]["id"]
+    _write(path, document)
+    with pytest.raises(MapError, match=r"slots/1/id: duplicate id 3"):
+        load_map(path)
+
+
+def test_save_refuses_bad_map_and_keeps_old_file(tmp_path: Path) -> None:
+    path, _ = _saved(tmp_path)
+    before = path.read_text()
+    good = make_map()
+    bad_slot = good.slots[0]
+    broken = SemanticMap(
+        slots=(
+            type(bad_slot)(
+                1,
+                None,
+                0.0,
+                np.full((4, 2), np.nan),
+                bad_slot.corner_covariances,
+                SlotKind.PARALLEL,
+            ),
+        ),
+    )
+    with pytest.raises(MapError, match=r"slots/0/corners/0/0: NaN"):
+        save_map(path, broken)
+    assert path.read_text() == before
+
+
+def test_map_from_dict_uses_source_name() -> None:
+    with pytest.raises(MapError, match=r"^<dict>: expected a JSON object"):
+        map_from_dict([1, 2])
+    assert issubclass(MapError, FormatError)

@@ -1,0 +1,185 @@
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import make_frame
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from semslam.errors import FormatError
+from semslam.io import (
+    frame_observations_from_dict,
+    frame_observations_to_dict,
+    read_observations,
+    write_observations,
+)
+from semslam.types import (
+    FrameObservations,
+    MarkingObservation,
+    SlotKind,
+    SlotObservation,
+    TagFamily,
+    TagObservation,
+)
+
+real = st.floats(-1e6, 1e6, allow_nan=False)
+unit = st.floats(0.0, 1.0)
+positive = st.floats(1e-6, 1e3)
+
+
+def arrays(shape: tuple[int, ...]) -> st.SearchStrategy[np.ndarray]:
+    n = int(np.prod(shape))
+    return st.lists(real, min_size=n, max_size=n).map(lambda v: np.array(v).reshape(shape))
+
+
+slots = st.builds(
+    SlotObservation,
+    vCorners=arrays((4, 2)),
+    kind=st.sampled_from(SlotKind),
+    label=st.none() | st.text(max_size=8),
+    label_confidence=unit,
+    confidence=unit,
+    corner_sigma=st.floats(0.0, 10.0),
+)
+tags = st.builds(
+    TagObservation,
+    family=st.sampled_from(TagFamily),
+    tag_id=st.integers(0, 10**6),
+    size=positive,
+    vTt=arrays((3,)),
+    height=real,
+    covariance=arrays((3, 3)),
+)
+markings = st.builds(
+    MarkingObservation, vA=arrays((2,)), vB=arrays((2,)), width=positive, confidence=unit
+)
+
+
+@st.composite
+def frame_lists(draw: st.DrawFn) -> list[FrameObservations]:
+    times = sorted(set(draw(st.lists(st.floats(-1e6, 1e6), max_size=6))))
+    return [
+        FrameObservations(
+            t=t,
+            slots=tuple(draw(st.lists(slots, max_size=3))),
+            tags=tuple(draw(st.lists(tags, max_size=2))),
+            markings=tuple(draw(st.lists(markings, max_size=2))),
+        )
+        for t in times
+    ]
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(frame_lists())
+def test_round_trip(tmp_path: Path, frames: list[FrameObservations]) -> None:
+    path = tmp_path / "obs.jsonl"
+    write_observations(path, frames)
+    loaded = read_observations(path)
+    assert [frame_observations_to_dict(f) for f in loaded] == [
+        frame_observations_to_dict(f) for f in frames
+    ]
+    assert len(path.read_text().splitlines()) == len(frames)
+
+
+def test_types_after_reading(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    write_observations(path, (make_frame(t) for t in (0.0, 0.1)))
+    frame = read_observations(path)[1]
+    assert frame.t == 0.1
+    assert frame.slots[0].vCorners.shape == (4, 2) and frame.slots[0].kind is SlotKind.PARALLEL
+    assert frame.tags[0].vTt.shape == (3,) and frame.tags[0].covariance.shape == (3, 3)
+    assert frame.tags[0].family is TagFamily.TAG25H9
+    assert frame.markings[0].vA.shape == (2,)
+
+
+def test_missing_lists_mean_nothing_seen() -> None:
+    frame = frame_observations_from_dict({"t": 3.0})
+    assert frame.slots == () and frame.tags == () and frame.markings == ()
+
+
+def test_empty_file_is_no_frames(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    write_observations(path, [])
+    assert read_observations(path) == []
+
+
+def _lines(n: int = 3) -> list[dict]:
+    return [frame_observations_to_dict(make_frame(0.1 * i)) for i in range(n)]
+
+
+def _write(path: Path, documents: list[dict]) -> None:
+    path.write_text("".join(json.dumps(d) + "\n" for d in documents))
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (
+            lambda d: d["slots"][0]["corners"].pop(),
+            r"obs\.jsonl line 3: slots/0/corners: expected 4 points, got 3",
+        ),
+        (
+            lambda d: d["slots"][0].update(kind="round"),
+            r"line 3: slots/0/kind: 'round' is not one of",
+        ),
+        (
+            lambda d: d["slots"][0].update(confidence=2),
+            r"line 3: slots/0/confidence: must be <= 1\.0",
+        ),
+        (lambda d: d["tags"][0].pop("size"), r"line 3: tags/0: missing field 'size'"),
+        (lambda d: d["tags"][0].update(id=1.5), r"line 3: tags/0/id: expected an integer"),
+        (
+            lambda d: d["tags"][0]["covariance"][1].append(0),
+            r"line 3: tags/0/covariance/1: expected 3 numbers, got 4",
+        ),
+        (
+            lambda d: d["markings"][0].update(a=[1.0, float("nan")]),
+            r"line 3: markings/0/a/1: NaN is not allowed",
+        ),
+        (lambda d: d.update(t=0.05), r"line 3: time goes backwards \(0\.050 after 0\.100\)"),
+        (lambda d: d.pop("t"), r"line 3: missing field 't'"),
+    ],
+)
+def test_rejects(tmp_path: Path, mutate, message: str) -> None:
+    documents = _lines()
+    mutate(documents[2])
+    path = tmp_path / "obs.jsonl"
+    _write(path, documents)
+    with pytest.raises(FormatError, match=message):
+        read_observations(path)
+
+
+def test_truncated_last_line(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    write_observations(path, [make_frame(0.1 * i) for i in range(3)])
+    text = path.read_text()
+    path.write_text(text[:-20])
+    with pytest.raises(FormatError, match=r"obs\.jsonl line 3: not valid JSON"):
+        read_observations(path)
+
+
+def test_line_not_an_object(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    path.write_text("[1, 2]\n")
+    with pytest.raises(FormatError, match=r"obs\.jsonl line 1: expected an object, got an array"):
+        read_observations(path)
+
+
+def test_writer_refuses_unordered_or_broken_frames(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    with pytest.raises(FormatError, match=r"obs\.jsonl: frame 1: time goes backwards"):
+        write_observations(path, [make_frame(1.0), make_frame(0.5)])
+    broken = make_frame(0.0)
+    slot = broken.slots[0]
+    bad = FrameObservations(
+        t=0.0,
+        slots=(SlotObservation(slot.vCorners[:3], slot.kind, None, 0.0, 1.0, 0.1),),
+    )
+    with pytest.raises(
+        FormatError, match=r"obs\.jsonl: frame 0: slots/0/corners: expected 4 points"
+    ):
+        write_observations(path, [bad])
+    assert not path.exists()

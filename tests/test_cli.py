@@ -1,0 +1,136 @@
+"""Smoke tests of every command, through the real CLI entry point."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from semslam import __version__
+from semslam.cli import app
+from semslam.io import Drive
+
+runner = CliRunner()
+
+
+def _run(*args, env=None):
+    return runner.invoke(app, [str(a) for a in args], env=env)
+
+
+@pytest.fixture(scope="module")
+def small_drive(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "drive"
+    result = _run(
+        "simulate", out, "--preset", "small", "--seed", "3", "--no-images", "--no-progress"
+    )
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_version():
+    result = _run("--version")
+    assert result.exit_code == 0
+    assert __version__ in result.stdout
+
+
+def test_dump_config_is_json_with_defaults_and_env_overrides():
+    result = _run("dump-config", env={"SEMSLAM_SIMULATION__DRIVE__MAX_SPEED": "2.5"})
+    assert result.exit_code == 0
+    config = json.loads(result.stdout)
+    assert config["simulation"]["drive"]["max_speed"] == 2.5
+    assert config["simulation"]["observation_noise"]["slot_miss_rate"] == 0.2
+
+
+def test_simulate_writes_a_complete_readable_drive(small_drive):
+    drive = Drive.open(small_drive)
+    assert drive.info.start_pose is not None
+    odo = drive.odometry()
+    frames = drive.frames()
+    t_gt, poses = drive.groundtruth()
+    assert len(odo.t) > 4 * len(frames.t)
+    assert np.allclose(t_gt, frames.t)
+    assert np.allclose(poses[0], drive.start_pose, atol=1e-6)
+    assert len(drive.world().slots) > 30
+    assert set(drive.observation_names()) == {"exact", "noisy"}
+    assert len(drive.observations("noisy")) == len(frames.t)
+    assert json.loads((small_drive / "config.json").read_text())["simulation"]
+    assert "summary" not in (small_drive / "drive.json").read_text()
+
+
+def test_simulate_same_seed_same_bytes(small_drive, tmp_path):
+    out = tmp_path / "again"
+    assert (
+        _run(
+            "simulate", out, "--preset", "small", "--seed", "3", "--no-images", "--no-progress"
+        ).exit_code
+        == 0
+    )
+    for name in (
+        "odometry.csv",
+        "groundtruth.tum",
+        "world.json",
+        "observations/noisy.jsonl",
+        "observations/exact.jsonl",
+        "rig.json",
+        "drive.json",
+        "frames.csv",
+    ):
+        assert (out / name).read_bytes() == (small_drive / name).read_bytes(), name
+
+
+def test_simulate_with_images_writes_images_and_labels(tmp_path):
+    out = tmp_path / "img"
+    result = _run(
+        "simulate",
+        out,
+        "--preset",
+        "small",
+        "--seed",
+        "1",
+        "--no-progress",
+        env={
+            "SEMSLAM_SIMULATION__DRIVE__MAX_DURATION": "0.55",
+            "SEMSLAM_SIMULATION__RENDER__WORKERS": "1",
+        },
+    )
+    assert result.exit_code == 0, result.output
+    drive = Drive.open(out)
+    frames = drive.frames()
+    assert len(frames.t) == 6
+    for column in ("topview", "front"):
+        assert drive.image_path(column, 5).stat().st_size > 10_000
+    labels = json.loads((out / "labels" / "topview" / "000000.json").read_text())
+    assert set(labels) >= {"marks", "slots"}
+
+
+def test_simulate_refuses_a_folder_with_other_files(tmp_path):
+    (tmp_path / "precious.txt").write_text("keep me")
+    result = _run("simulate", tmp_path, "--preset", "small", "--no-images")
+    assert result.exit_code == 2
+    assert "not empty" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert (tmp_path / "precious.txt").read_text() == "keep me"
+
+
+def test_broken_config_file_is_one_line_error(tmp_path):
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"simulation": {"drive": {"max_speed": -1}}}')
+    result = _run("dump-config", "--config", cfg)
+    assert result.exit_code == 2
+    assert "simulation.drive.max_speed" in result.stderr
+    cfg.write_text('{"simulation": ')
+    result = _run("dump-config", "--config", cfg)
+    assert result.exit_code == 2 and "c.json" in result.stderr
+
+
+def test_unknown_preset_exits_nonzero(tmp_path):
+    result = _run("simulate", tmp_path / "x", "--preset", "huge")
+    assert result.exit_code != 0
+
+
+def test_console_script_module_entry_point_runs():
+    proc = subprocess.run(
+        [sys.executable, "-m", "semslam", "--version"], capture_output=True, text=True, check=False
+    )
+    assert proc.returncode == 0 and __version__ in proc.stdout
