@@ -74,7 +74,7 @@ def simulate(
 ) -> None:
     """Simulate a drive through a seeded garage and write it as a drive folder."""
     from semslam.config import load_config
-    from semslam.pipeline import simulate as run
+    from semslam.pipeline.simulate import simulate as run
     from semslam.reporting import print_simulation_summary
 
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
-from semslam.pipeline import SimulationSummary
+from semslam.pipeline.simulate import SimulationSummary
 
 
 def print_simulation_summary(summary: SimulationSummary, console: Console | None = None) -> None:

@@ -1,4 +1,4 @@
-"""Runs that touch files: the orchestration behind each CLI command.
+"""`semslam simulate`: write a simulated drive as a drive folder.
 
 Library modules compute; this module reads inputs, writes outputs
 atomically, shows progress and leaves the configuration beside the results.
