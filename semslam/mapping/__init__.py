@@ -1,0 +1,1 @@
+"""Offline mapping: the GTSAM factor graph (gtsam is imported only inside this package)."""
