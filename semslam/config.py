@@ -29,9 +29,11 @@ class OdometryNoiseConfig(_Section):
     speed_sigma: float = Field(0.03, ge=0, description="white noise on wheel speed, m/s")
     speed_scale_sigma: float = Field(0.01, ge=0, description="per-drive scale error (1-sigma)")
     gyro_sigma: float = Field(0.003, ge=0, description="white noise on yaw rate, rad/s")
-    gyro_bias_sigma: float = Field(0.002, ge=0, description="per-drive constant gyro bias, rad/s")
+    gyro_bias_sigma: float = Field(
+        1e-4, ge=0, description="per-drive constant gyro bias, rad/s (0.006 deg/s, automotive)"
+    )
     gyro_bias_walk: float = Field(
-        5e-5, ge=0, description="gyro bias random walk, rad/s per sqrt(s)"
+        5e-6, ge=0, description="gyro bias random walk, rad/s per sqrt(s)"
     )
 
 
