@@ -84,6 +84,30 @@ def simulate(
     print_simulation_summary(summary)
 
 
+evaluate_app = typer.Typer(
+    help="Score outputs against ground truth (JSON for scripts).", no_args_is_help=True
+)
+app.add_typer(evaluate_app, name="evaluate")
+
+
+@evaluate_app.command("map")
+def evaluate_map(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map to score.")],
+    truth: Annotated[Path, typer.Option(help="The true map (a simulated drive's world.json).")],
+    align: Annotated[bool, typer.Option(help="Fit the best SE(2) transform first.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Corner errors, matched / duplicate / false slots, wrong merges, ID accuracy, tags."""
+    from semslam.pipeline.evaluate import evaluate_map_files
+    from semslam.reporting import print_metrics
+
+    try:
+        metrics = evaluate_map_files(map_path, truth, align=align)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_metrics("map evaluation", metrics, json_output)
+
+
 @app.command("dump-config")
 def dump_config(config: ConfigOption = None) -> None:
     """Print the configuration in force (defaults, then --config, then SEMSLAM_ variables)."""

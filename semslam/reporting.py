@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from typing import Any
+
 from rich.console import Console
 from rich.table import Table
 
@@ -26,4 +29,22 @@ def print_simulation_summary(summary: SimulationSummary, console: Console | None
     ]
     for k, v in rows:
         table.add_row(k, v)
+    console.print(table)
+
+
+def print_metrics(
+    title: str, metrics: dict[str, Any], as_json: bool, console: Console | None = None
+) -> None:
+    """Metrics as JSON (for scripts) or as a table (for people)."""
+    if as_json:
+        print(json.dumps(metrics, indent=2, allow_nan=False))
+        return
+    console = console or Console()
+    table = Table(title=title, show_header=False)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    for key, value in metrics.items():
+        if isinstance(value, float):
+            value = f"{value:.4g}"
+        table.add_row(key, "-" if value is None else str(value))
     console.print(table)

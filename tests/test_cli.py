@@ -134,3 +134,21 @@ def test_console_script_module_entry_point_runs():
         [sys.executable, "-m", "semslam", "--version"], capture_output=True, text=True, check=False
     )
     assert proc.returncode == 0 and __version__ in proc.stdout
+
+
+def test_evaluate_map_of_the_truth_is_perfect(small_drive):
+    world = small_drive / "world.json"
+    result = _run("evaluate", "map", world, "--truth", world, "--json")
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(result.stdout)
+    assert metrics["corner_rmse_m"] == 0.0
+    assert metrics["slots_matched"] == metrics["slots_true"]
+    assert metrics["id_accuracy"] == 1.0
+
+
+def test_evaluate_map_refuses_a_broken_map(small_drive, tmp_path):
+    broken = tmp_path / "map.json"
+    broken.write_text((small_drive / "world.json").read_text()[:500])
+    result = _run("evaluate", "map", broken, "--truth", small_drive / "world.json")
+    assert result.exit_code == 2
+    assert "map.json" in result.stderr and len(result.stderr.strip().splitlines()) == 1

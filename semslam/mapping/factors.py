@@ -1,0 +1,103 @@
+"""Residuals of semslam's landmark factors with analytic Jacobians (gtsam local coordinates).
+
+Pose2 perturbations are gtsam's: ``pose.retract(d)`` moves by ``d = (dx, dy, dyaw)``
+in the pose's own frame; Point2 perturbations are plain additions. Every
+Jacobian here is checked numerically in tests/mapping/test_factors.py.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+
+from semslam.geometry import FloatArray
+
+
+def point_in_pose(
+    pose: gtsam.Pose2, point: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``q = pose^-1 * point`` (vehicle-frame coordinates of a map point) and its Jacobians
+    (2x3 w.r.t. the pose, 2x2 w.r.t. the point)."""
+    c, s = np.cos(pose.theta()), np.sin(pose.theta())
+    Rt = np.array([[c, s], [-s, c]])
+    q = Rt @ (np.asarray(point) - np.array([pose.x(), pose.y()]))
+    H_pose = np.array([[-1.0, 0.0, q[1]], [0.0, -1.0, -q[0]]])
+    return q, H_pose, Rt
+
+
+def slot_observation_residual(pose_key: int, corner_keys: Sequence[int], measured: FloatArray):
+    """Residual of a slot seen from a keyframe: predicted minus measured vehicle-frame
+    corners, (8,) = 4 corners x (x, y); ``measured`` is (4, 2) in the vehicle frame."""
+    corner_keys = list(corner_keys)
+    z = np.asarray(measured, dtype=float)
+
+    def residual(values: gtsam.Values, want_jacobians: bool):
+        pose = values.atPose2(pose_key)
+        r = np.empty(8)
+        H_pose = np.empty((8, 3))
+        H_corners: dict[int, FloatArray] = {}
+        for k, key in enumerate(corner_keys):
+            q, Hp, Hc = point_in_pose(pose, values.atPoint2(key))
+            r[2 * k : 2 * k + 2] = q - z[k]
+            if want_jacobians:
+                H_pose[2 * k : 2 * k + 2] = Hp
+                block = np.zeros((8, 2))
+                block[2 * k : 2 * k + 2] = Hc
+                H_corners[key] = block
+        if not want_jacobians:
+            return r, None
+        return r, {pose_key: H_pose, **H_corners}
+
+    return residual
+
+
+def slot_shape_residual(corner_keys: Sequence[int], right_angles: bool, width: float, depth: float):
+    """Residual of a slot's shape prior over its 4 corners (entrance-left, entrance-right,
+    rear-right, rear-left): parallelogram closure ``c0 - c1 + c2 - c3`` (2, m), then, if
+    ``right_angles``, the cosine of the entrance corner angle (1), then side lengths minus
+    the priors ``width`` and ``depth`` (2, m). Residual dimension 5 (or 4)."""
+    keys = list(corner_keys)
+
+    def residual(values: gtsam.Values, want_jacobians: bool):
+        c = [np.asarray(values.atPoint2(k)) for k in keys]
+        I2 = np.eye(2)
+        rows: list[FloatArray] = [c[0] - c[1] + c[2] - c[3]]
+        J: list[list[FloatArray]] = [[I2, -I2, I2, -I2]]
+        u, v = c[1] - c[0], c[3] - c[0]
+        lu, lv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+        uh, vh = u / lu, v / lv
+        if right_angles:
+            cos = float(uh @ vh)
+            du = (vh - cos * uh) / lu  # d cos / d u
+            dv = (uh - cos * vh) / lv
+            rows.append(np.array([cos]))
+            z = np.zeros((1, 2))
+            J.append([-(du + dv)[None, :], du[None, :], z, dv[None, :]])
+        rows.append(np.array([lu - width, lv - depth]))
+        z2 = np.zeros(2)
+        J.append([np.stack([-uh, -vh]), np.stack([uh, z2]), np.zeros((2, 2)), np.stack([z2, vh])])
+        r = np.concatenate(rows)
+        if not want_jacobians:
+            return r, None
+        return r, {key: np.vstack([blocks[k] for blocks in J]) for k, key in enumerate(keys)}
+
+    return residual
+
+
+def custom_factor(
+    keys: Sequence[int], residual, noise: gtsam.noiseModel.Base
+) -> gtsam.CustomFactor:
+    """A gtsam CustomFactor from one of the residual functions above and a noise model
+    (gtsam whitens, and applies a robust loss if ``noise`` is robust)."""
+    keys = list(keys)
+
+    def error_function(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        r, J = residual(values, H is not None)
+        if H is not None:
+            for n, key in enumerate(keys):
+                H[n] = J[key]
+        return r
+
+    return gtsam.CustomFactor(noise, keys, error_function)

@@ -1,0 +1,106 @@
+import gtsam
+import numpy as np
+import pytest
+
+from semslam.mapping.factors import (
+    custom_factor,
+    point_in_pose,
+    slot_observation_residual,
+    slot_shape_residual,
+)
+from semslam.mapping.odometry import odometry_between
+from semslam.motion import integrate_odometry
+
+X, C = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.C
+
+
+def _numerical(residual, values, key, eps=1e-6):
+    base = values
+    if values.exists(key) and isinstance(_value(values, key), gtsam.Pose2):
+        dim, step = 3, lambda v, d: v.retract(d)
+    else:
+        dim, step = 2, lambda v, d: np.asarray(v) + d
+    cols = []
+    for k in range(dim):
+        d = np.zeros(dim)
+        d[k] = eps
+        vp, vm = gtsam.Values(base), gtsam.Values(base)
+        vp.update(key, step(_value(base, key), d))
+        vm.update(key, step(_value(base, key), -d))
+        cols.append((residual(vp, False)[0] - residual(vm, False)[0]) / (2 * eps))
+    return np.stack(cols, axis=1)
+
+
+def _value(values, key):
+    try:
+        return values.atPose2(key)
+    except RuntimeError:
+        return values.atPoint2(key)
+
+
+@pytest.fixture
+def slot_values():
+    rng = np.random.default_rng(0)
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose2(1.0, -2.0, 0.7))
+    corners = np.array([[3.0, 1.0], [5.5, 1.1], [5.4, 6.0], [2.9, 6.1]]) + rng.normal(
+        0, 0.05, (4, 2)
+    )
+    for k in range(4):
+        values.insert(C(k), corners[k])
+    return values
+
+
+def test_point_in_pose_matches_gtsam(slot_values):
+    pose = slot_values.atPose2(X(0))
+    q, _, _ = point_in_pose(pose, slot_values.atPoint2(C(0)))
+    assert np.allclose(q, pose.transformTo(slot_values.atPoint2(C(0))))
+
+
+def test_slot_observation_jacobians_are_numerically_right(slot_values):
+    z = np.zeros((4, 2))
+    res = slot_observation_residual(X(0), [C(k) for k in range(4)], z)
+    _, J = res(slot_values, True)
+    for key in [X(0)] + [C(k) for k in range(4)]:
+        assert np.allclose(J[key], _numerical(res, slot_values, key), atol=1e-6)
+
+
+@pytest.mark.parametrize("right_angles", [True, False])
+def test_slot_shape_jacobians_are_numerically_right(slot_values, right_angles):
+    res = slot_shape_residual([C(k) for k in range(4)], right_angles, 2.5, 5.0)
+    r, J = res(slot_values, True)
+    assert r.shape == ((5,) if right_angles else (4,))
+    for k in range(4):
+        assert np.allclose(J[C(k)], _numerical(res, slot_values, C(k)), atol=1e-6)
+
+
+def test_shape_residual_zero_for_a_perfect_rectangle():
+    values = gtsam.Values()
+    for k, c in enumerate([[0, 0], [2.5, 0], [2.5, 5], [0, 5]]):
+        values.insert(C(k), np.array(c, dtype=float))
+    r, _ = slot_shape_residual([C(k) for k in range(4)], True, 2.5, 5.0)(values, False)
+    assert np.allclose(r, 0.0)
+
+
+def test_custom_factor_linearizes_with_the_analytic_jacobian(slot_values):
+    z = np.array([[2.0, 1.0], [2.0, -1.5], [7.0, -1.5], [7.0, 1.0]])
+    res = slot_observation_residual(X(0), [C(k) for k in range(4)], z)
+    factor = custom_factor(
+        [X(0)] + [C(k) for k in range(4)], res, gtsam.noiseModel.Isotropic.Sigma(8, 0.05)
+    )
+    r, _ = res(slot_values, False)
+    assert factor.error(slot_values) == pytest.approx(0.5 * np.sum((r / 0.05) ** 2))
+
+
+def test_odometry_between_matches_dead_reckoning_and_grows():
+    t = np.arange(0, 10.0, 0.02)
+    v = np.full_like(t, 2.0)
+    w = np.where(t < 5, 0.0, 0.3)
+    poses = integrate_odometry([0, 0, 0], t, v, w)
+    i, j = 100, 400
+    rel, cov = odometry_between(t, v, w, t[i], t[j], 0.03, 0.01, 0.003)
+    expected = gtsam.Pose2(*poses[i]).between(gtsam.Pose2(*poses[j]))
+    assert np.allclose(rel, [expected.x(), expected.y(), expected.theta()], atol=1e-9)
+    _, cov_short = odometry_between(t, v, w, t[i], t[i + 50], 0.03, 0.01, 0.003)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    assert np.trace(cov) > np.trace(cov_short)
