@@ -100,6 +100,61 @@ class SimulationConfig(_Section):
     render: RenderConfig = RenderConfig()
 
 
+class MappingConfig(_Section):
+    """The offline mapper: keyframes, odometry model, association and robust back-end."""
+
+    optimizer: str = Field(
+        "isam2",
+        pattern="^(isam2|none)$",
+        description="isam2: factor graph; none: observations placed by odometry alone",
+    )
+    robust: str = Field(
+        "maxmix",
+        pattern="^(maxmix|none)$",
+        description="maxmix: max-mixture with null hypothesis; none: plain least squares",
+    )
+    keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
+    keyframe_angle_deg: float = Field(5.0, gt=0)
+    update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
+    speed_sigma: float = Field(0.05, gt=0, description="odometry model: speed noise, m/s")
+    speed_scale_sigma: float = Field(0.01, ge=0, description="odometry model: scale error")
+    yaw_rate_sigma: float = Field(0.005, gt=0, description="odometry model: gyro noise, rad/s")
+    calibrate_odometry: bool = Field(
+        True, description="estimate wheel-speed scale and gyro bias in the graph"
+    )
+    scale_prior_sigma: float = Field(0.03, gt=0, description="speed scale prior around 1")
+    gyro_bias_prior_sigma: float = Field(1e-3, gt=0, description="gyro bias prior, rad/s")
+    calibration_window: int = Field(
+        40, ge=1, description="keyframes sharing one calibration variable (keeps iSAM2 local)"
+    )
+    calibration_walk: tuple[float, float] = Field(
+        (0.002, 2e-5), description="random walk of (scale, bias) from one window to the next"
+    )
+    tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
+    slot_corner_sigma_min: float = Field(0.02, gt=0, description="floor on corner sigma, m")
+    id_confidence_high: float = Field(
+        0.5, ge=0, le=1, description="label confidence from which the ID proposes the slot"
+    )
+    association_gate: float = Field(
+        1.0, gt=0, description="mean corner distance for a geometric candidate, m"
+    )
+    id_gate: float = Field(2.0, gt=0, description="mean corner distance for an ID candidate, m")
+    max_candidates: int = Field(3, ge=1)
+    null_weight: float = Field(0.05, gt=0, lt=1, description="prior weight of the null hypothesis")
+    null_information_scale: float = Field(
+        1e-4, gt=0, lt=1, description="null component's information relative to the measurement"
+    )
+    new_landmark_observations: int = Field(
+        3, ge=1, description="M: consistent observations before a pooled slot becomes a landmark"
+    )
+    pool_radius: float = Field(0.5, gt=0, description="m, mean corner distance within the pool")
+    pool_max_age: int = Field(40, ge=1, description="keyframes a pooled slot waits to be seen")
+    merge_distance: float = Field(0.6, gt=0, description="m, duplicates closer than this merge")
+    min_accepted_observations: int = Field(
+        2, ge=1, description="slots with fewer accepted observations are dropped from the map"
+    )
+
+
 class SemslamConfig(BaseSettings):
     """The root configuration."""
 
@@ -108,6 +163,7 @@ class SemslamConfig(BaseSettings):
     )
 
     simulation: SimulationConfig = SimulationConfig()
+    mapping: MappingConfig = MappingConfig()
 
 
 def load_config(path: Path | None = None) -> SemslamConfig:

@@ -86,6 +86,52 @@ def slot_shape_residual(corner_keys: Sequence[int], right_angles: bool, width: f
     return residual
 
 
+def calibrated_odometry_residual(
+    key_a: int, key_b: int, key_calibration: int, delta: FloatArray, J_calibration: FloatArray
+):
+    """Residual of odometry between keyframes a and b whose wheel-speed scale and gyro bias
+    are estimated (a Vector2 variable ``(scale, bias)``, nominal (1, 0)).
+
+    The predicted relative pose is ``p = delta + J_calibration @ (scale - 1, bias)``; the
+    residual ``(R(p_yaw)' (rel_t - p_t), rel_yaw - p_yaw)`` with ``rel = a^-1 * b`` (3,).
+    """
+    delta = np.asarray(delta, dtype=float)
+    Jk = np.asarray(J_calibration, dtype=float)
+
+    def residual(values: gtsam.Values, want_jacobians: bool):
+        a, b = values.atPose2(key_a), values.atPose2(key_b)
+        k = np.asarray(values.atVector(key_calibration), dtype=float)
+        p = delta + Jk @ np.array([k[0] - 1.0, k[1]])
+        ca, sa = np.cos(a.theta()), np.sin(a.theta())
+        Ra_t = np.array([[ca, sa], [-sa, ca]])
+        rel_t = Ra_t @ np.array([b.x() - a.x(), b.y() - a.y()])
+        rel_yaw = b.theta() - a.theta()
+        cp, sp = np.cos(p[2]), np.sin(p[2])
+        Rp_t = np.array([[cp, sp], [-sp, cp]])
+        r_t = Rp_t @ (rel_t - p[:2])
+        r = np.array([r_t[0], r_t[1], np.arctan2(np.sin(rel_yaw - p[2]), np.cos(rel_yaw - p[2]))])
+        if not want_jacobians:
+            return r, None
+        d_rel_a = np.zeros((3, 3))
+        d_rel_a[:2, :2] = -np.eye(2)
+        d_rel_a[:2, 2] = [rel_t[1], -rel_t[0]]
+        d_rel_a[2, 2] = -1.0
+        c, s = np.cos(rel_yaw), np.sin(rel_yaw)
+        d_rel_b = np.zeros((3, 3))
+        d_rel_b[:2, :2] = [[c, -s], [s, c]]
+        d_rel_b[2, 2] = 1.0
+        d_r_rel = np.zeros((3, 3))
+        d_r_rel[:2, :2] = Rp_t
+        d_r_rel[2, 2] = 1.0
+        d_r_p = np.zeros((3, 3))
+        d_r_p[:2, :2] = -Rp_t
+        d_r_p[:2, 2] = [r_t[1], -r_t[0]]
+        d_r_p[2, 2] = -1.0
+        return r, {key_a: d_r_rel @ d_rel_a, key_b: d_r_rel @ d_rel_b, key_calibration: d_r_p @ Jk}
+
+    return residual
+
+
 def custom_factor(
     keys: Sequence[int], residual, noise: gtsam.noiseModel.Base
 ) -> gtsam.CustomFactor:

@@ -59,3 +59,20 @@ def odometry_between(
         i += 1
     P = 0.5 * (P + P.T) + np.eye(3) * 1e-10
     return np.array([x, y, float(wrap_angle(yaw))]), P
+
+
+def calibration_jacobian(
+    t: FloatArray, speed: FloatArray, yaw_rate: FloatArray, t_start: float, t_end: float
+) -> FloatArray:
+    """(3, 2) derivative of the segment's relative pose with respect to the odometry
+    calibration ``(speed scale, gyro bias)`` at (1, 0): speed is multiplied by the scale,
+    the bias is subtracted from the yaw rate (central differences; the segment is short)."""
+    eps_s, eps_b = 1e-4, 1e-5
+
+    def rel(scale: float, bias: float) -> FloatArray:
+        return odometry_between(t, speed * scale, yaw_rate - bias, t_start, t_end, 0, 0, 0)[0]
+
+    J = np.empty((3, 2))
+    J[:, 0] = (rel(1 + eps_s, 0) - rel(1 - eps_s, 0)) / (2 * eps_s)
+    J[:, 1] = (rel(1, eps_b) - rel(1, -eps_b)) / (2 * eps_b)
+    return J

@@ -3,12 +3,13 @@ import numpy as np
 import pytest
 
 from semslam.mapping.factors import (
+    calibrated_odometry_residual,
     custom_factor,
     point_in_pose,
     slot_observation_residual,
     slot_shape_residual,
 )
-from semslam.mapping.odometry import odometry_between
+from semslam.mapping.odometry import calibration_jacobian, odometry_between
 from semslam.motion import integrate_odometry
 
 X, C = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.C
@@ -32,10 +33,12 @@ def _numerical(residual, values, key, eps=1e-6):
 
 
 def _value(values, key):
-    try:
-        return values.atPose2(key)
-    except RuntimeError:
-        return values.atPoint2(key)
+    for getter in (values.atPose2, values.atPoint2, values.atVector):
+        try:
+            return getter(key)
+        except RuntimeError:
+            continue
+    raise KeyError(key)
 
 
 @pytest.fixture
@@ -104,3 +107,35 @@ def test_odometry_between_matches_dead_reckoning_and_grows():
     _, cov_short = odometry_between(t, v, w, t[i], t[i + 50], 0.03, 0.01, 0.003)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
     assert np.trace(cov) > np.trace(cov_short)
+
+
+def test_calibrated_odometry_jacobians_and_zero_at_truth():
+    K = gtsam.symbol_shorthand.K
+    t = np.arange(0, 1.0, 0.02)
+    v, w = np.full_like(t, 2.0), np.full_like(t, 0.4)
+    delta, _ = odometry_between(t, v, w, 0.0, 0.5, 0, 0, 0)
+    J = calibration_jacobian(t, v, w, 0.0, 0.5)
+    true_scale, true_bias = 1.02, 0.01
+    true_delta, _ = odometry_between(t, v * true_scale, w - true_bias, 0.0, 0.5, 0, 0, 0)
+    values = gtsam.Values()
+    a = gtsam.Pose2(1.0, 2.0, 0.3)
+    values.insert(X(0), a)
+    values.insert(X(1), a.compose(gtsam.Pose2(*true_delta)))
+    values.insert(K(0), np.array([true_scale, true_bias]))
+    res = calibrated_odometry_residual(X(0), X(1), K(0), delta, J)
+    r, H = res(values, True)
+    assert np.allclose(r, 0.0, atol=2e-4)  # first-order model of the calibration
+    values.update(X(1), a.compose(gtsam.Pose2(0.9, 0.1, 0.25)))
+    _, H = res(values, True)
+    for key in (X(0), X(1)):
+        assert np.allclose(H[key], _numerical(res, values, key), atol=1e-6)
+    eps = 1e-6
+    num = np.zeros((3, 2))
+    for k in range(2):
+        d = np.zeros(2)
+        d[k] = eps
+        vp, vm = gtsam.Values(values), gtsam.Values(values)
+        vp.update(K(0), values.atVector(K(0)) + d)
+        vm.update(K(0), values.atVector(K(0)) - d)
+        num[:, k] = (res(vp, False)[0] - res(vm, False)[0]) / (2 * eps)
+    assert np.allclose(H[K(0)], num, atol=1e-6)

@@ -1,0 +1,168 @@
+"""Slot landmarks while mapping: current corner estimates, label votes, merges, the pool.
+
+Pure bookkeeping in the map frame (numpy, no gtsam): which slots exist, where
+their corners are now, which painted IDs their accepted observations read,
+and the pool of slots seen too few times to become landmarks yet.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from semslam.geometry import FloatArray
+from semslam.types import SlotKind
+
+
+@dataclass
+class SlotLandmark:
+    """A mapped slot: ``corners`` (4, 2) map frame (current estimate), ``kind``,
+    ``votes`` label -> summed confidence, ``merged_into`` the surviving landmark's index."""
+
+    index: int
+    corners: FloatArray
+    kind: SlotKind
+    votes: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    merged_into: int | None = None
+
+    def best_label(self) -> tuple[str | None, float]:
+        """(label, share of the votes it holds); (None, 0) without votes."""
+        if not self.votes:
+            return None, 0.0
+        label = max(self.votes, key=lambda k: self.votes[k])
+        total = sum(self.votes.values())
+        return label, self.votes[label] / total if total > 0 else 0.0
+
+
+def mean_corner_distance(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Mean distance between corresponding corners: ``a`` (4, 2), ``b`` (N, 4, 2) -> (N,)."""
+    return np.linalg.norm(b - a[None], axis=2).mean(axis=1)
+
+
+class SlotLandmarks:
+    """All slot landmarks; merged ones stay (their variables do) but are inactive."""
+
+    def __init__(self) -> None:
+        self.items: list[SlotLandmark] = []
+
+    def add(self, corners: FloatArray, kind: SlotKind) -> SlotLandmark:
+        landmark = SlotLandmark(len(self.items), np.array(corners, dtype=float), kind)
+        self.items.append(landmark)
+        return landmark
+
+    def active(self) -> list[SlotLandmark]:
+        return [s for s in self.items if s.merged_into is None]
+
+    def resolve(self, index: int) -> int:
+        """Follow merges to the surviving landmark."""
+        while self.items[index].merged_into is not None:
+            index = self.items[index].merged_into  # type: ignore[assignment]
+        return index
+
+    def candidates(
+        self,
+        corners: FloatArray,
+        label: str | None,
+        label_confidence: float,
+        gate: float,
+        id_gate: float,
+        id_confidence: float,
+        max_candidates: int,
+    ) -> list[tuple[int, float, bool]]:
+        """Landmarks an observation (map-frame ``corners`` (4, 2)) may belong to.
+
+        Returns (index, mean corner distance, proposed by ID) for the nearest
+        active landmarks within ``gate`` and, when the observation's label is
+        confident, the landmark holding that label within ``id_gate``.
+        """
+        active = self.active()
+        if not active:
+            return []
+        stack = np.array([s.corners for s in active])
+        d = mean_corner_distance(corners, stack)
+        order = np.argsort(d)
+        out: dict[int, tuple[int, float, bool]] = {}
+        for k in order[:max_candidates]:
+            if d[k] <= gate:
+                out[active[k].index] = (active[k].index, float(d[k]), False)
+        if label is not None and label_confidence >= id_confidence:
+            for k in order:
+                if d[k] > id_gate:
+                    break
+                if active[k].best_label()[0] == label:
+                    out[active[k].index] = (active[k].index, float(d[k]), True)
+                    break
+        return sorted(out.values(), key=lambda c: c[1])
+
+    def duplicates(self, distance: float) -> list[tuple[int, int]]:
+        """Pairs (keep, drop) of active landmarks closer than ``distance`` whose labels do
+        not contradict each other (equal, or one of them without a confident label)."""
+        active = self.active()
+        if len(active) < 2:
+            return []
+        stack = np.array([s.corners for s in active])
+        pairs = []
+        taken: set[int] = set()
+        for i, a in enumerate(active):
+            if a.index in taken:
+                continue
+            d = mean_corner_distance(a.corners, stack[i + 1 :])
+            for j in np.flatnonzero(d < distance):
+                b = active[i + 1 + j]
+                if b.index in taken or b.kind != a.kind:
+                    continue
+                (la, ca), (lb, cb) = a.best_label(), b.best_label()
+                if la is not None and lb is not None and la != lb and min(ca, cb) > 0.5:
+                    continue
+                pairs.append((a.index, b.index))
+                taken.add(b.index)
+        return pairs
+
+
+@dataclass
+class PooledSlot:
+    """A slot seen too few times to be a landmark: the map-frame corners of each sighting
+    and the sightings themselves (keyframe key, observation index in the audit)."""
+
+    corners: list[FloatArray]
+    sightings: list[int]
+    kind: SlotKind
+    last_keyframe: int
+
+    @property
+    def mean_corners(self) -> FloatArray:
+        return np.mean(self.corners, axis=0)
+
+
+class SlotPool:
+    """Tentative slots; one becomes a landmark after M consistent sightings (TiEV)."""
+
+    def __init__(self, radius: float, max_age: int) -> None:
+        self.radius, self.max_age = radius, max_age
+        self.items: list[PooledSlot] = []
+
+    def add(self, corners: FloatArray, kind: SlotKind, sighting: int, keyframe: int) -> PooledSlot:
+        """Put a sighting in the pool; returns the pooled slot it joined (or started)."""
+        best, best_d = None, self.radius
+        for item in self.items:
+            if item.kind != kind:
+                continue
+            d = float(mean_corner_distance(corners, item.mean_corners[None])[0])
+            if d < best_d:
+                best, best_d = item, d
+        if best is None:
+            best = PooledSlot([], [], kind, keyframe)
+            self.items.append(best)
+        best.corners.append(np.array(corners))
+        best.sightings.append(sighting)
+        best.last_keyframe = keyframe
+        return best
+
+    def remove(self, item: PooledSlot) -> None:
+        self.items.remove(item)
+
+    def expire(self, keyframe: int) -> None:
+        """Forget pooled slots not seen for ``max_age`` keyframes."""
+        self.items = [s for s in self.items if keyframe - s.last_keyframe <= self.max_age]

@@ -1,0 +1,502 @@
+"""The offline mapper: keyframes, odometry, tags and slots on a robust factor graph.
+
+Follows TiEV (DESIGN.md) with the association made exact:
+
+- a keyframe every ``keyframe_distance`` metres or ``keyframe_angle_deg`` of turn;
+  odometry between keyframes from the CTRV integration of wheel speed and gyro
+  with a covariance that grows with distance;
+- tags are trusted and associated by ID (relative Pose2, dropped beyond the range
+  limit);
+- a slot observation's candidates are the nearest mapped slots within a gate plus,
+  when its ID is confident, the slot holding that ID; one candidate becomes a
+  native-style factor whose loss is a max-mixture with the null hypothesis,
+  several become one multi-hypothesis max-mixture factor (plus null);
+- with no candidate the sighting waits in a pool and becomes a new landmark after
+  M consistent sightings; duplicates (same place, compatible ID) are merged by
+  tight equality factors;
+- iSAM2 after every keyframe (the map is usable at any time), a final batch
+  Levenberg-Marquardt, marginal covariances for every landmark;
+- labels: each slot keeps the label its *accepted* observations voted for most
+  (summed confidence), and the share of the votes as its confidence.
+
+Everything is in the map frame anchored at the drive's start pose.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import gtsam
+import numpy as np
+
+from semslam.config import MappingConfig
+from semslam.geometry import FloatArray, compose, transform_points, wrap_angle
+from semslam.mapping.factors import (
+    calibrated_odometry_residual,
+    custom_factor,
+    slot_observation_residual,
+    slot_shape_residual,
+)
+from semslam.mapping.graph import Graph
+from semslam.mapping.landmarks import SlotLandmarks, SlotPool
+from semslam.mapping.maxmix import (
+    Component,
+    MaxMixture,
+    NullHypothesis,
+    is_null_chosen,
+    null_hypothesis_noise,
+)
+from semslam.mapping.odometry import calibration_jacobian, odometry_between
+from semslam.types import FrameObservations, SemanticMap, Slot, SlotKind, SlotObservation, Tag
+
+X = gtsam.symbol_shorthand.X  # keyframe poses
+C = gtsam.symbol_shorthand.C  # slot corners: C(4 * slot + k)
+T = gtsam.symbol_shorthand.T  # tags
+K = gtsam.symbol_shorthand.K  # odometry calibration (speed scale, gyro bias)
+
+_SHAPE_PRIORS = {  # (right angles, entrance width m, depth m, width sigma, depth sigma)
+    SlotKind.PERPENDICULAR: (True, 2.5, 5.0, 0.4, 0.6),
+    SlotKind.PARALLEL: (True, 6.0, 2.5, 1.0, 0.4),
+    SlotKind.SLANTED: (False, 3.0, 5.0, 1.0, 0.6),
+}
+
+
+class SightingStatus(StrEnum):
+    """What became of one slot observation (the association audit)."""
+
+    POOLED = "pooled"  # waiting, never reached M sightings
+    ACCEPTED = "accepted"  # its factor sits on a landmark's component
+    NULL = "null"  # its factor sits on the null hypothesis
+    REASSIGNED = "reassigned"  # accepted, but by another candidate than the nearest at first
+
+
+@dataclass
+class Sighting:
+    """One slot observation at a keyframe and what the mapper did with it."""
+
+    t: float
+    keyframe: int
+    observation: SlotObservation
+    candidates: list[int] = field(default_factory=list)  # landmark index per component
+    first_choice: int | None = None
+    factor: object | None = None  # gtsam factor or MaxMixture
+    status: SightingStatus = SightingStatus.POOLED
+    landmark: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class MappingResult:
+    """The map, the keyframe trajectory (times (K,), poses (K, 3)), the audit, statistics."""
+
+    map: SemanticMap
+    keyframe_times: FloatArray
+    keyframe_poses: FloatArray
+    sightings: tuple[Sighting, ...]
+    statistics: dict
+
+
+class Mapper:
+    """Builds a semantic map frame by frame; call :meth:`add_frame` in time order, then
+    :meth:`finish`."""
+
+    def __init__(
+        self,
+        config: MappingConfig,
+        start_pose: FloatArray,
+        odometry_t: FloatArray,
+        odometry_speed: FloatArray,
+        odometry_yaw_rate: FloatArray,
+    ) -> None:
+        self.cfg = config
+        self.odo = (
+            np.asarray(odometry_t),
+            np.asarray(odometry_speed),
+            np.asarray(odometry_yaw_rate),
+        )
+        self.use_graph = config.optimizer == "isam2"
+        self.robust = config.robust == "maxmix"
+        self.null = NullHypothesis(config.null_weight, config.null_information_scale)
+        self.graph = Graph()
+        self.slots = SlotLandmarks()
+        self.pool = SlotPool(config.pool_radius, config.pool_max_age)
+        self.sightings: list[Sighting] = []
+        self.keyframe_times: list[float] = []
+        self.keyframe_poses: list[FloatArray] = []  # current estimates (dead reckoning if no graph)
+        self.tags: dict[int, dict] = {}
+        self._start = np.asarray(start_pose, dtype=float)
+        self._pending: tuple[float, FloatArray] | None = None
+        self._timing = {"update_s": 0.0, "association_s": 0.0}
+        self._slot_observation_sums: dict[int, list[FloatArray]] = {}
+        self.calibration = np.array([1.0, 0.0])  # current (speed scale, gyro bias) estimate
+
+    # ------------------------------------------------------------------ frames
+    def add_frame(self, frame: FrameObservations) -> bool:
+        """Add a frame; returns True if it became a keyframe."""
+        if not self.keyframe_times:
+            self._add_keyframe(frame.t, self._start, None)
+            self._observe(frame)
+            return True
+        t_prev = self.keyframe_times[-1]
+        delta, cov = odometry_between(
+            *self.odo,
+            t_prev,
+            frame.t,
+            self.cfg.speed_sigma,
+            self.cfg.speed_scale_sigma,
+            self.cfg.yaw_rate_sigma,
+        )
+        moved = math.hypot(delta[0], delta[1])
+        turned = abs(math.degrees(delta[2]))
+        if moved < self.cfg.keyframe_distance and turned < self.cfg.keyframe_angle_deg:
+            return False
+        J = calibration_jacobian(*self.odo, t_prev, frame.t) if self._calibrating else None
+        corrected = delta if J is None else delta + J @ (self.calibration - [1.0, 0.0])
+        predicted = compose(self.keyframe_poses[-1], corrected)
+        self._add_keyframe(frame.t, predicted, (delta, cov, J))
+        self._observe(frame)
+        if self.use_graph and len(self.keyframe_times) % self.cfg.update_every == 0:
+            started = time.perf_counter()
+            self.graph.update()
+            self._refresh_estimates()
+            self._merge_duplicates()
+            self._timing["update_s"] += time.perf_counter() - started
+        return True
+
+    def _add_keyframe(self, t: float, pose: FloatArray, odometry) -> None:
+        k = len(self.keyframe_times)
+        self.keyframe_times.append(t)
+        self.keyframe_poses.append(np.asarray(pose, dtype=float))
+        if not self.use_graph:
+            return
+        self.graph.add_pose(X(k), pose)
+        if odometry is None:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+            self.graph.add_factor(gtsam.PriorFactorPose2(X(k), gtsam.Pose2(*pose), noise))
+            if self._calibrating:
+                self.graph.add_vector(K(0), self.calibration)
+                sigmas = np.array([self.cfg.scale_prior_sigma, self.cfg.gyro_bias_prior_sigma])
+                self.graph.add_factor(
+                    gtsam.PriorFactorVector(
+                        K(0), self.calibration, gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+                    )
+                )
+            return
+        delta, cov, J = odometry
+        noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+        if J is None:
+            self.graph.add_factor(
+                gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*delta), noise)
+            )
+            return
+        window = k // self.cfg.calibration_window
+        if not self.graph.has(K(window)):
+            self.graph.add_vector(K(window), self.calibration)
+            walk = gtsam.noiseModel.Diagonal.Sigmas(np.array(self.cfg.calibration_walk))
+            self.graph.add_factor(
+                gtsam.BetweenFactorVector(K(window - 1), K(window), np.zeros(2), walk)
+            )
+        self.graph.add_factor(
+            custom_factor(
+                [X(k - 1), X(k), K(window)],
+                calibrated_odometry_residual(X(k - 1), X(k), K(window), delta, J),
+                noise,
+            )
+        )
+
+    def _observe(self, frame: FrameObservations) -> None:
+        k = len(self.keyframe_times) - 1
+        started = time.perf_counter()
+        for tag in frame.tags:
+            self._add_tag(k, tag)
+        for obs in frame.slots:
+            self._add_slot_sighting(k, frame.t, obs)
+        self.pool.expire(k)
+        self._timing["association_s"] += time.perf_counter() - started
+
+    # ------------------------------------------------------------------ tags
+    def _add_tag(self, k: int, tag) -> None:
+        if math.hypot(tag.vTt[0], tag.vTt[1]) > self.cfg.tag_range_limit:
+            return
+        pose = self.keyframe_poses[k]
+        info = self.tags.setdefault(
+            tag.tag_id, {"family": tag.family, "size": tag.size, "heights": [], "poses": []}
+        )
+        info["heights"].append(tag.height)
+        info["poses"].append(compose(pose, tag.vTt))
+        if not self.use_graph:
+            return
+        key = T(tag.tag_id)
+        if not self.graph.has(key):
+            self.graph.add_pose(key, compose(pose, tag.vTt))
+        cov = 0.5 * (tag.covariance + tag.covariance.T) + np.eye(3) * 1e-8
+        self.graph.add_factor(
+            gtsam.BetweenFactorPose2(
+                X(k), key, gtsam.Pose2(*tag.vTt), gtsam.noiseModel.Gaussian.Covariance(cov)
+            )
+        )
+
+    # ------------------------------------------------------------------ slots
+    def _add_slot_sighting(self, k: int, t: float, obs: SlotObservation) -> None:
+        cfg = self.cfg
+        corners = transform_points(self.keyframe_poses[k], obs.vCorners)
+        sighting = Sighting(t, k, obs)
+        index = len(self.sightings)
+        self.sightings.append(sighting)
+        candidates = self.slots.candidates(
+            corners,
+            obs.label,
+            obs.label_confidence,
+            cfg.association_gate,
+            cfg.id_gate,
+            cfg.id_confidence_high,
+            cfg.max_candidates,
+        )
+        if candidates:
+            self._attach(sighting, candidates)
+            return
+        pooled = self.pool.add(corners, obs.kind, index, k)
+        if len(pooled.sightings) >= cfg.new_landmark_observations:
+            self.pool.remove(pooled)
+            landmark = self.slots.add(pooled.mean_corners, obs.kind)
+            self._add_slot_variables(landmark.index, landmark.corners, landmark.kind)
+            for i in pooled.sightings:
+                self._attach(self.sightings[i], [(landmark.index, 0.0, False)])
+
+    def _add_slot_variables(self, index: int, corners: FloatArray, kind: SlotKind) -> None:
+        if not self.use_graph:
+            return
+        keys = [C(4 * index + c) for c in range(4)]
+        for key, corner in zip(keys, corners, strict=True):
+            self.graph.add_point(key, corner)
+        right, width, depth, sw, sd = _SHAPE_PRIORS[kind]
+        sigmas = [0.02, 0.02] + ([0.02] if right else []) + [sw, sd]
+        self.graph.add_factor(
+            custom_factor(
+                keys,
+                slot_shape_residual(keys, right, width, depth),
+                gtsam.noiseModel.Diagonal.Sigmas(np.array(sigmas)),
+            )
+        )
+
+    def _observation_sigma(self, obs: SlotObservation) -> float:
+        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
+        return sigma / math.sqrt(max(obs.confidence, 0.05))
+
+    def _attach(self, sighting: Sighting, candidates: list[tuple[int, float, bool]]) -> None:
+        """Turn a sighting with candidate landmarks into a factor."""
+        obs = sighting.observation
+        sighting.candidates = [c[0] for c in candidates]
+        scores = np.array(
+            [1.0 + 4.0 * obs.label_confidence if by_id else 1.0 for _, _, by_id in candidates]
+        )
+        sighting.first_choice = sighting.candidates[
+            int(np.argmax(scores / (1 + np.array([c[1] for c in candidates]))))
+        ]
+        sighting.status = SightingStatus.ACCEPTED
+        sighting.landmark = sighting.first_choice
+        if not self.use_graph:
+            self._slot_observation_sums.setdefault(sighting.first_choice, []).append(
+                transform_points(self.keyframe_poses[sighting.keyframe], obs.vCorners)
+            )
+            return
+        sigma = self._observation_sigma(obs)
+        pose_key = X(sighting.keyframe)
+        corner_keys = {i: [C(4 * i + c) for c in range(4)] for i in sighting.candidates}
+        if not self.robust:  # plain least squares: the most likely candidate, Gaussian
+            keys = corner_keys[sighting.first_choice]
+            sighting.factor = custom_factor(
+                [pose_key, *keys],
+                slot_observation_residual(pose_key, keys, obs.vCorners),
+                gtsam.noiseModel.Isotropic.Sigma(8, sigma),
+            )
+            self.graph.add_factor(sighting.factor)
+            return
+        if len(candidates) == 1:
+            keys = corner_keys[sighting.candidates[0]]
+            sighting.factor = custom_factor(
+                [pose_key, *keys],
+                slot_observation_residual(pose_key, keys, obs.vCorners),
+                null_hypothesis_noise(np.eye(8) * sigma * sigma, self.null),
+            )
+            self.graph.add_factor(sighting.factor)
+            return
+        weights = scores / scores.sum() * (1.0 - self.null.weight)
+        sqrt_info = np.eye(8) / sigma
+        components = [
+            Component(
+                slot_observation_residual(pose_key, corner_keys[i], obs.vCorners),
+                sqrt_info,
+                float(w),
+            )
+            for i, w in zip(sighting.candidates, weights, strict=True)
+        ]
+        nearest = corner_keys[sighting.candidates[0]]
+        components.append(
+            Component(
+                slot_observation_residual(pose_key, nearest, obs.vCorners),
+                sqrt_info * math.sqrt(self.null.information_scale),
+                self.null.weight,
+            )
+        )
+        keys = [pose_key] + [key for i in sighting.candidates for key in corner_keys[i]]
+        mixture = MaxMixture(keys, [3] + [2] * (len(keys) - 1), components)
+        sighting.factor = mixture
+        self.graph.add_factor(mixture.factor())
+
+    # ------------------------------------------------------------------ estimates
+    @property
+    def _calibrating(self) -> bool:
+        return self.use_graph and self.cfg.calibrate_odometry
+
+    def _refresh_estimates(self) -> None:
+        g = self.graph
+        if self._calibrating:
+            window = (len(self.keyframe_times) - 1) // self.cfg.calibration_window
+            while window > 0 and not g.has(K(window)):
+                window -= 1
+            self.calibration = g.vector(K(window))
+        for k in range(len(self.keyframe_poses)):
+            if g.has(X(k)):
+                self.keyframe_poses[k] = g.pose(X(k))
+        for s in self.slots.items:
+            s.corners = np.array([g.point(C(4 * s.index + c)) for c in range(4)])
+
+    def _merge_duplicates(self) -> None:
+        for keep, drop in self.slots.duplicates(self.cfg.merge_distance):
+            noise = gtsam.noiseModel.Isotropic.Sigma(2, 0.005)
+            for c in range(4):
+                self.graph.add_factor(
+                    gtsam.BetweenFactorPoint2(C(4 * keep + c), C(4 * drop + c), np.zeros(2), noise)
+                )
+            self.slots.items[drop].merged_into = keep
+
+    # ------------------------------------------------------------------ finish
+    def finish(self) -> MappingResult:
+        started = time.perf_counter()
+        iterations = 0
+        marginals = None
+        if self.use_graph:
+            self.graph.update()
+            iterations = self.graph.optimize_batch()
+            self._refresh_estimates()
+            marginals = self.graph.marginals()
+            self._decide_components()
+        else:
+            for index, sums in self._slot_observation_sums.items():
+                self.slots.items[index].corners = np.mean(sums, axis=0)
+        semantic_map = self._export(marginals)
+        stats = {
+            "keyframes": len(self.keyframe_times),
+            "slot_observations": len(self.sightings),
+            "accepted": sum(
+                s.status in (SightingStatus.ACCEPTED, SightingStatus.REASSIGNED)
+                for s in self.sightings
+            ),
+            "null": sum(s.status is SightingStatus.NULL for s in self.sightings),
+            "reassigned": sum(s.status is SightingStatus.REASSIGNED for s in self.sightings),
+            "pooled": sum(s.status is SightingStatus.POOLED for s in self.sightings),
+            "landmarks_created": len(self.slots.items),
+            "merged": sum(s.merged_into is not None for s in self.slots.items),
+            "batch_iterations": iterations,
+            "odometry_scale": round(float(self.calibration[0]), 5),
+            "gyro_bias_rad_s": float(self.calibration[1]),
+            "association_s": round(self._timing["association_s"], 3),
+            "isam2_s": round(self._timing["update_s"], 3),
+            "batch_s": round(time.perf_counter() - started, 3),
+        }
+        return MappingResult(
+            semantic_map,
+            np.array(self.keyframe_times),
+            np.array(self.keyframe_poses),
+            tuple(self.sightings),
+            stats,
+        )
+
+    def _decide_components(self) -> None:
+        """Read each slot factor's chosen component at the final estimate (the audit)."""
+        values = self.graph.estimate
+        for s in self.sightings:
+            if s.factor is None:
+                continue
+            if isinstance(s.factor, MaxMixture):
+                i = s.factor.chosen(values)
+                chosen = s.candidates[i] if i < len(s.candidates) else None
+            elif self.robust:
+                chosen = None if is_null_chosen(s.factor, values, self.null) else s.candidates[0]
+            else:
+                chosen = s.first_choice
+            if chosen is None:
+                s.status, s.landmark = SightingStatus.NULL, None
+            else:
+                s.landmark = chosen
+                s.status = (
+                    SightingStatus.ACCEPTED
+                    if chosen == s.first_choice
+                    else SightingStatus.REASSIGNED
+                )
+
+    def _export(self, marginals) -> SemanticMap:
+        for landmark in self.slots.items:
+            landmark.votes.clear()
+        accepted: dict[int, int] = {}
+        for s in self.sightings:
+            if s.landmark is None or s.status in (SightingStatus.NULL, SightingStatus.POOLED):
+                continue
+            index = self.slots.resolve(s.landmark)
+            accepted[index] = accepted.get(index, 0) + 1
+            if s.observation.label is not None:
+                self.slots.items[index].votes[s.observation.label] += s.observation.label_confidence
+        slots = []
+        for landmark in self.slots.active():
+            n = accepted.get(landmark.index, 0)
+            if n < self.cfg.min_accepted_observations:
+                continue
+            label, confidence = landmark.best_label()
+            covs = np.zeros((4, 2, 2))
+            if marginals is not None:
+                for c in range(4):
+                    covs[c] = marginals.marginalCovariance(C(4 * landmark.index + c))
+            slots.append(
+                Slot(
+                    len(slots),
+                    label,
+                    float(confidence),
+                    landmark.corners.copy(),
+                    covs,
+                    landmark.kind,
+                    n,
+                )
+            )
+        tags = []
+        for tag_id, info in sorted(self.tags.items()):
+            if self.use_graph:
+                mTt = self.graph.pose(T(tag_id))
+                cov = (
+                    marginals.marginalCovariance(T(tag_id))
+                    if marginals is not None
+                    else np.zeros((3, 3))
+                )
+            else:
+                poses = np.array(info["poses"])
+                mTt = np.array(
+                    [
+                        *poses[:, :2].mean(axis=0),
+                        math.atan2(np.sin(poses[:, 2]).mean(), np.cos(poses[:, 2]).mean()),
+                    ]
+                )
+                cov = np.cov(poses.T) if len(poses) > 1 else np.zeros((3, 3))
+            mTt[2] = wrap_angle(mTt[2])
+            tags.append(
+                Tag(
+                    info["family"],
+                    tag_id,
+                    info["size"],
+                    mTt,
+                    float(np.median(info["heights"])),
+                    cov,
+                )
+            )
+        return SemanticMap(slots=tuple(slots), tags=tuple(tags), markings=())
