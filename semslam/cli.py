@@ -84,6 +84,44 @@ def simulate(
     print_simulation_summary(summary)
 
 
+class ObservationSource(StrEnum):
+    exact = "exact"
+    noisy = "noisy"
+    cached = "cached"
+    images = "images"
+
+
+@app.command("map")
+def map_command(
+    drive: Annotated[Path, typer.Argument(help="Drive folder to map.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Map file to write (JSON).")],
+    observations: Annotated[
+        ObservationSource, typer.Option(help="Which observations to map from.")
+    ] = ObservationSource.noisy,
+    optimizer: Annotated[
+        str | None, typer.Option(help="isam2 (factor graph) or none (odometry only).")
+    ] = None,
+    robust: Annotated[
+        str | None, typer.Option(help="maxmix (null hypothesis) or none (plain least squares).")
+    ] = None,
+    config: ConfigOption = None,
+    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+) -> None:
+    """Build the semantic map of a drive: slots with IDs and tags on a robust factor graph."""
+    from semslam.config import load_config, with_overrides
+    from semslam.pipeline.mapping import build_map
+    from semslam.reporting import print_map_summary
+
+    try:
+        cfg = with_overrides(
+            load_config(config), mapping={"optimizer": optimizer, "robust": robust}
+        )
+        summary = build_map(drive, output, observations.value, cfg, progress)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_map_summary(summary)
+
+
 evaluate_app = typer.Typer(
     help="Score outputs against ground truth (JSON for scripts).", no_args_is_help=True
 )

@@ -116,9 +116,11 @@ class MappingConfig(_Section):
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
     update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
-    speed_sigma: float = Field(0.05, gt=0, description="odometry model: speed noise, m/s")
-    speed_scale_sigma: float = Field(0.01, ge=0, description="odometry model: scale error")
-    yaw_rate_sigma: float = Field(0.005, gt=0, description="odometry model: gyro noise, rad/s")
+    speed_sigma: float = Field(0.03, gt=0, description="odometry model: speed noise, m/s")
+    speed_scale_sigma: float = Field(
+        0.002, ge=0, description="odometry model: scale error left after calibration"
+    )
+    yaw_rate_sigma: float = Field(0.003, gt=0, description="odometry model: gyro noise, rad/s")
     calibrate_odometry: bool = Field(
         True, description="estimate wheel-speed scale and gyro bias in the graph"
     )
@@ -190,3 +192,17 @@ def load_config(path: Path | None = None) -> SemslamConfig:
 def config_to_json(config: SemslamConfig) -> str:
     """The configuration as pretty JSON (what ``dump-config`` prints)."""
     return json.dumps(config.model_dump(mode="json"), indent=2) + "\n"
+
+
+def with_overrides(config: SemslamConfig, **sections: dict[str, Any]) -> SemslamConfig:
+    """``config`` with some fields of some sections replaced (None values are ignored),
+    validated like a config file; e.g. ``with_overrides(c, mapping={"robust": "none"})``."""
+    data = config.model_dump()
+    for section, fields in sections.items():
+        data[section].update({k: v for k, v in fields.items() if v is not None})
+    try:
+        return SemslamConfig(**data)
+    except ValidationError as e:
+        err = e.errors()[0]
+        field = ".".join(str(p) for p in err["loc"])
+        raise ConfigError(f"{field}: {err['msg']}") from None

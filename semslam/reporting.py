@@ -8,6 +8,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from semslam.pipeline.mapping import MapSummary
 from semslam.pipeline.simulate import SimulationSummary
 
 
@@ -47,4 +48,33 @@ def print_metrics(
         if isinstance(value, float):
             value = f"{value:.4g}"
         table.add_row(key, "-" if value is None else str(value))
+    console.print(table)
+
+
+def print_map_summary(summary: MapSummary, console: Console | None = None) -> None:
+    """What ``semslam map`` built and how fast."""
+    console = console or Console()
+    stats = summary.statistics
+    table = Table(title=f"semslam map -> {summary.map_path}", show_header=False)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    rows = [
+        ("drive", f"{summary.drive} ({summary.observations} observations)"),
+        ("frames / keyframes", f"{summary.frames} / {stats.get('keyframes', '-')}"),
+        ("slots / tags mapped", f"{summary.slots} / {summary.tags}"),
+        ("slot observations", str(stats.get("slot_observations", "-"))),
+        (
+            "accepted / null / pooled",
+            f"{stats.get('accepted', '-')} / {stats.get('null', '-')} / {stats.get('pooled', '-')}",
+        ),
+        ("duplicates merged", str(stats.get("merged", "-"))),
+        (
+            "odometry scale, gyro bias",
+            f"{stats.get('odometry_scale', '-')}, {stats.get('gyro_bias_rad_s', 0.0):.2e} rad/s",
+        ),
+        ("driving / mapping time", f"{summary.driving_s:.1f} s / {summary.mapping_s:.1f} s"),
+        ("faster than driving", f"{stats.get('speedup', '-')}x"),
+    ]
+    for k, v in rows:
+        table.add_row(k, v)
     console.print(table)

@@ -152,3 +152,27 @@ def test_evaluate_map_refuses_a_broken_map(small_drive, tmp_path):
     result = _run("evaluate", "map", broken, "--truth", small_drive / "world.json")
     assert result.exit_code == 2
     assert "map.json" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_map_writes_a_valid_map_and_its_by_products(small_drive, tmp_path):
+    out = tmp_path / "garage.json"
+    result = _run("map", small_drive, "-o", out, "--observations", "noisy", "--no-progress")
+    assert result.exit_code == 0, result.output
+    for suffix in (".json", ".trajectory.tum", ".audit.jsonl", ".config.json"):
+        assert (tmp_path / f"garage{suffix}").stat().st_size > 0
+    metrics = json.loads(
+        _run("evaluate", "map", out, "--truth", small_drive / "world.json", "--json").stdout
+    )
+    assert metrics["slots_matched"] >= 0.9 * metrics["slots_mapped"]
+    audit = [
+        json.loads(line) for line in (tmp_path / "garage.audit.jsonl").read_text().splitlines()
+    ]
+    assert {a["status"] for a in audit} <= {"accepted", "null", "reassigned", "pooled"}
+
+
+def test_map_refuses_missing_drive_and_unknown_observations(small_drive, tmp_path):
+    result = _run("map", tmp_path / "nothing", "-o", tmp_path / "m.json")
+    assert result.exit_code == 2 and "drive folder not found" in result.stderr
+    result = _run("map", small_drive, "-o", tmp_path / "m.json", "--observations", "images")
+    assert result.exit_code == 2 and "perception models" in result.stderr
+    assert not (tmp_path / "m.json").exists()

@@ -96,6 +96,7 @@ class MappingResult:
     keyframe_poses: FloatArray
     sightings: tuple[Sighting, ...]
     statistics: dict
+    slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
 class Mapper:
@@ -297,6 +298,10 @@ class Mapper:
         ]
         sighting.status = SightingStatus.ACCEPTED
         sighting.landmark = sighting.first_choice
+        if obs.label is not None:  # running votes, recounted from final decisions at the end
+            self.slots.items[self.slots.resolve(sighting.first_choice)].votes[obs.label] += (
+                obs.label_confidence
+            )
         if not self.use_graph:
             self._slot_observation_sums.setdefault(sighting.first_choice, []).append(
                 transform_points(self.keyframe_poses[sighting.keyframe], obs.vCorners)
@@ -387,7 +392,7 @@ class Mapper:
         else:
             for index, sums in self._slot_observation_sums.items():
                 self.slots.items[index].corners = np.mean(sums, axis=0)
-        semantic_map = self._export(marginals)
+        semantic_map, slot_of_landmark = self._export(marginals)
         stats = {
             "keyframes": len(self.keyframe_times),
             "slot_observations": len(self.sightings),
@@ -413,6 +418,7 @@ class Mapper:
             np.array(self.keyframe_poses),
             tuple(self.sightings),
             stats,
+            slot_of_landmark,
         )
 
     def _decide_components(self) -> None:
@@ -438,7 +444,7 @@ class Mapper:
                     else SightingStatus.REASSIGNED
                 )
 
-    def _export(self, marginals) -> SemanticMap:
+    def _export(self, marginals) -> tuple[SemanticMap, dict[int, int]]:
         for landmark in self.slots.items:
             landmark.votes.clear()
         accepted: dict[int, int] = {}
@@ -450,6 +456,7 @@ class Mapper:
             if s.observation.label is not None:
                 self.slots.items[index].votes[s.observation.label] += s.observation.label_confidence
         slots = []
+        slot_of_landmark: dict[int, int] = {}
         for landmark in self.slots.active():
             n = accepted.get(landmark.index, 0)
             if n < self.cfg.min_accepted_observations:
@@ -459,6 +466,7 @@ class Mapper:
             if marginals is not None:
                 for c in range(4):
                     covs[c] = marginals.marginalCovariance(C(4 * landmark.index + c))
+            slot_of_landmark[landmark.index] = len(slots)
             slots.append(
                 Slot(
                     len(slots),
@@ -470,6 +478,10 @@ class Mapper:
                     n,
                 )
             )
+        for landmark in self.slots.items:  # merged duplicates answer for their survivor
+            survivor = self.slots.resolve(landmark.index)
+            if survivor in slot_of_landmark:
+                slot_of_landmark[landmark.index] = slot_of_landmark[survivor]
         tags = []
         for tag_id, info in sorted(self.tags.items()):
             if self.use_graph:
@@ -499,4 +511,4 @@ class Mapper:
                     cov,
                 )
             )
-        return SemanticMap(slots=tuple(slots), tags=tuple(tags), markings=())
+        return SemanticMap(slots=tuple(slots), tags=tuple(tags), markings=()), slot_of_landmark

@@ -1,0 +1,139 @@
+"""`semslam map`: build a map from a drive folder and write it with its by-products.
+
+Writes, next to ``MAP.json``: ``MAP.trajectory.tum`` (keyframes, TUM),
+``MAP.audit.jsonl`` (what became of every slot observation),
+``MAP.config.json`` (the configuration used).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from pathlib import Path
+
+from semslam import __version__
+from semslam.config import SemslamConfig, config_to_json
+from semslam.errors import DriveError
+from semslam.progress import progress_bar
+
+OBSERVATION_SOURCES = ("exact", "noisy", "cached", "images")
+
+
+@dataclass(frozen=True)
+class MapSummary:
+    """What ``semslam map`` did."""
+
+    map_path: Path
+    drive: str
+    observations: str
+    frames: int
+    driving_s: float
+    mapping_s: float
+    slots: int
+    tags: int
+    statistics: dict
+
+
+def _sibling(map_path: Path, suffix: str) -> Path:
+    return map_path.with_name(map_path.stem + suffix)
+
+
+def load_observations(drive, source: str):
+    """The per-frame observations of ``drive`` from ``source``."""
+    if source not in OBSERVATION_SOURCES:
+        raise DriveError(f"--observations {source}: choose one of {', '.join(OBSERVATION_SOURCES)}")
+    if source == "images":
+        raise DriveError(
+            f"{drive.folder}: --observations images needs the perception models in models/, "
+            "which this version does not ship yet; use exact, noisy or cached"
+        )
+    return drive.observations(source)
+
+
+def build_map(
+    drive_folder: Path,
+    map_path: Path,
+    observations: str,
+    config: SemslamConfig,
+    show_progress: bool | None = None,
+) -> MapSummary:
+    """Map the drive at ``drive_folder`` and write ``map_path`` and its siblings."""
+    from semslam.io import Drive, save_map, write_tum
+    from semslam.io.atomic import atomic_write_text
+    from semslam.mapping.mapper import Mapper
+
+    drive = Drive.open(drive_folder)
+    odometry = drive.odometry()
+    frames = load_observations(drive, observations)
+    if frames and frames[0].t < odometry.t[0] - 1e-6:
+        raise DriveError(
+            f"{drive_folder}: observations start at {frames[0].t:.3f} s, before the "
+            f"odometry ({odometry.t[0]:.3f} s)"
+        )
+    started = time.perf_counter()
+    mapper = Mapper(config.mapping, drive.start_pose, odometry.t, odometry.speed, odometry.yaw_rate)
+    with progress_bar(len(frames), "mapping", show_progress) as bar:
+        for frame in frames:
+            mapper.add_frame(frame)
+            bar.update(1)
+    result = mapper.finish()
+    elapsed = time.perf_counter() - started
+    driving = float(frames[-1].t - frames[0].t) if frames else 0.0
+    statistics = {
+        **result.statistics,
+        "mapping_s": round(elapsed, 3),
+        "driving_s": round(driving, 3),
+        "speedup": round(driving / elapsed, 2) if elapsed > 0 else None,
+    }
+    semantic_map = replace(
+        result.map,
+        metadata={
+            "generator": "semslam",
+            "version": __version__,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+            "source": str(Path(drive_folder).resolve()),
+            "drive": drive.info.name,
+            "observations": observations,
+            "statistics": statistics,
+        },
+    )
+    save_map(map_path, semantic_map)
+    write_tum(_sibling(map_path, ".trajectory.tum"), result.keyframe_times, result.keyframe_poses)
+    atomic_write_text(_sibling(map_path, ".audit.jsonl"), _audit_jsonl(result))
+    atomic_write_text(_sibling(map_path, ".config.json"), config_to_json(config))
+    return MapSummary(
+        map_path,
+        drive.info.name,
+        observations,
+        len(frames),
+        driving,
+        elapsed,
+        len(semantic_map.slots),
+        len(semantic_map.tags),
+        statistics,
+    )
+
+
+def _audit_jsonl(result) -> str:
+    """One line per slot observation: when, what it read, its candidates and its fate."""
+    slot_id = result.slot_of_landmark
+    lines = []
+    for s in result.sightings:
+        obs = s.observation
+        lines.append(
+            json.dumps(
+                {
+                    "t": round(s.t, 6),
+                    "keyframe": s.keyframe,
+                    "label": obs.label,
+                    "label_confidence": round(obs.label_confidence, 4),
+                    "candidates": [slot_id.get(c) for c in s.candidates],
+                    "status": s.status.value,
+                    "slot": slot_id.get(s.landmark) if s.landmark is not None else None,
+                },
+                separators=(",", ":"),
+            )
+        )
+    return "\n".join(lines) + ("\n" if lines else "")
