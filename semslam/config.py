@@ -142,6 +142,9 @@ class MappingConfig(_Section):
     )
     id_gate: float = Field(2.0, gt=0, description="mean corner distance for an ID candidate, m")
     max_candidates: int = Field(3, ge=1)
+    label_vote_gate: float = Field(
+        0.4, gt=0, description="m: a slot read between keyframes votes for the landmark this near"
+    )
     null_weight: float = Field(0.05, gt=0, lt=1, description="prior weight of the null hypothesis")
     null_information_scale: float = Field(
         1e-4, gt=0, lt=1, description="null component's information relative to the measurement"
@@ -150,6 +153,9 @@ class MappingConfig(_Section):
         3, ge=1, description="M: consistent observations before a pooled slot becomes a landmark"
     )
     pool_radius: float = Field(0.5, gt=0, description="m, mean corner distance within the pool")
+    max_overlap: float = Field(
+        0.3, gt=0, le=1, description="a new slot overlapping a mapped one more than this is a ghost"
+    )
     pool_max_age: int = Field(40, ge=1, description="keyframes a pooled slot waits to be seen")
     merge_distance: float = Field(0.6, gt=0, description="m, duplicates closer than this merge")
     min_accepted_observations: int = Field(

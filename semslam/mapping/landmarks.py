@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from semslam.geometry import FloatArray
@@ -39,6 +40,17 @@ class SlotLandmark:
 def mean_corner_distance(a: FloatArray, b: FloatArray) -> FloatArray:
     """Mean distance between corresponding corners: ``a`` (4, 2), ``b`` (N, 4, 2) -> (N,)."""
     return np.linalg.norm(b - a[None], axis=2).mean(axis=1)
+
+
+def overlap_ratio(a: FloatArray, b: FloatArray) -> float:
+    """Area shared by two convex quadrilaterals (4, 2) over the smaller one's area, in [0, 1].
+    Real slots only touch along their edges; a detection overlapping a known slot is a ghost."""
+    pa, pb = np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32)
+    area_a, area_b = abs(cv2.contourArea(pa)), abs(cv2.contourArea(pb))
+    if min(area_a, area_b) <= 1e-9:
+        return 0.0
+    shared, _ = cv2.intersectConvexConvex(pa, pb)
+    return float(shared) / min(area_a, area_b)
 
 
 class SlotLandmarks:
@@ -95,6 +107,18 @@ class SlotLandmarks:
                     out[active[k].index] = (active[k].index, float(d[k]), True)
                     break
         return sorted(out.values(), key=lambda c: c[1])
+
+    def overlapping(self, corners: FloatArray, threshold: float) -> bool:
+        """Does a slot at ``corners`` (4, 2) overlap an active landmark by more than
+        ``threshold`` of the smaller area?"""
+        centre = corners.mean(axis=0)
+        for s in self.active():
+            if (
+                np.linalg.norm(s.corners.mean(axis=0) - centre) < 7.0
+                and overlap_ratio(corners, s.corners) > threshold
+            ):
+                return True
+        return False
 
     def duplicates(self, distance: float) -> list[tuple[int, int]]:
         """Pairs (keep, drop) of active landmarks closer than ``distance`` whose labels do

@@ -132,6 +132,7 @@ class Mapper:
         self._timing = {"update_s": 0.0, "association_s": 0.0}
         self._slot_observation_sums: dict[int, list[FloatArray]] = {}
         self.calibration = np.array([1.0, 0.0])  # current (speed scale, gyro bias) estimate
+        self._label_votes: list[tuple[int, str, float]] = []  # from frames between keyframes
 
     # ------------------------------------------------------------------ frames
     def add_frame(self, frame: FrameObservations) -> bool:
@@ -152,6 +153,7 @@ class Mapper:
         moved = math.hypot(delta[0], delta[1])
         turned = abs(math.degrees(delta[2]))
         if moved < self.cfg.keyframe_distance and turned < self.cfg.keyframe_angle_deg:
+            self._read_labels_between_keyframes(frame, compose(self.keyframe_poses[-1], delta))
             return False
         J = calibration_jacobian(*self.odo, t_prev, frame.t) if self._calibrating else None
         corrected = delta if J is None else delta + J @ (self.calibration - [1.0, 0.0])
@@ -261,6 +263,8 @@ class Mapper:
         pooled = self.pool.add(corners, obs.kind, index, k)
         if len(pooled.sightings) >= cfg.new_landmark_observations:
             self.pool.remove(pooled)
+            if self.robust and self.slots.overlapping(pooled.mean_corners, cfg.max_overlap):
+                return  # a ghost of a mapped slot: its sightings stay unassociated
             landmark = self.slots.add(pooled.mean_corners, obs.kind)
             self._add_slot_variables(landmark.index, landmark.corners, landmark.kind)
             for i in pooled.sightings:
@@ -444,9 +448,22 @@ class Mapper:
                     else SightingStatus.REASSIGNED
                 )
 
+    def _read_labels_between_keyframes(self, frame: FrameObservations, pose: FloatArray) -> None:
+        """Painted IDs are cheap to use from every frame: a labelled slot seen between
+        keyframes votes for the one landmark within the label gate (no factor is added)."""
+        for obs in frame.slots:
+            if obs.label is None:
+                continue
+            corners = transform_points(pose, obs.vCorners)
+            near = self.slots.candidates(corners, None, 0.0, self.cfg.label_vote_gate, 0.0, 1.1, 2)
+            if len(near) == 1:
+                self._label_votes.append((near[0][0], obs.label, obs.label_confidence))
+
     def _export(self, marginals) -> tuple[SemanticMap, dict[int, int]]:
         for landmark in self.slots.items:
             landmark.votes.clear()
+        for index, label, confidence in self._label_votes:
+            self.slots.items[self.slots.resolve(index)].votes[label] += confidence
         accepted: dict[int, int] = {}
         for s in self.sightings:
             if s.landmark is None or s.status in (SightingStatus.NULL, SightingStatus.POOLED):

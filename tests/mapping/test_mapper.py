@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import numpy as np
 import pytest
 
 from semslam.config import MappingConfig, SimulationConfig
@@ -97,3 +98,12 @@ def test_plain_least_squares_is_bent_by_the_same_ghosts(small):
     robust = evaluate_map(_map(small, frames).map, _seen_truth(small))
     plain = evaluate_map(_map(small, frames, robust="none").map, _seen_truth(small))
     assert plain.corner_rmse_m > 2 * robust.corner_rmse_m
+
+
+def test_overlap_ratio_separates_neighbours_from_ghosts():
+    from semslam.mapping.landmarks import overlap_ratio
+
+    slot = np.array([[0, 0], [2.5, 0], [2.5, 5], [0, 5]], dtype=float)
+    assert overlap_ratio(slot, slot) == pytest.approx(1.0)
+    assert overlap_ratio(slot, slot + [2.5, 0]) == pytest.approx(0.0, abs=1e-6)  # neighbour
+    assert overlap_ratio(slot, slot + [1.25, 0]) == pytest.approx(0.5, abs=1e-3)  # ghost
