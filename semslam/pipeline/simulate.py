@@ -169,9 +169,9 @@ def simulate(
     from semslam.simulation.scenario import simulate_drive
 
     started = time.perf_counter()
-    sim = simulate_drive(preset, seed, drive_index, config.simulation)
     tmp = _prepare_output(out_dir)
     try:
+        sim = simulate_drive(preset, seed, drive_index, config.simulation)
         rec = sim.record
         save_rig(tmp / "rig.json", sim.rig)
         write_odometry(tmp / "odometry.csv", Odometry(rec.t, rec.odo_speed, rec.odo_yaw_rate))

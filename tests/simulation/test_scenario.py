@@ -2,6 +2,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from semslam.config import SimulationConfig
 from semslam.geometry import inverse_transform_points, transform_points, wrap_angle
@@ -81,12 +82,11 @@ def test_noisy_observations_follow_the_configured_rates():
     labels = {s.label: s for s in sim.world.slots}
     kept = false = wrong = readable = 0
     errors = []
+    centres = cKDTree(np.array([s.corners.mean(axis=0) for s in sim.world.slots]))
     for pose, frame in zip(sim.frame_poses, sim.noisy, strict=True):
         for obs in frame.slots:
             centre = transform_points(pose, obs.vCorners).mean(axis=0)
-            nearest = min(
-                sim.world.slots, key=lambda s: np.linalg.norm(s.corners.mean(axis=0) - centre)
-            )
+            nearest = sim.world.slots[int(centres.query(centre)[1])]
             d = transform_points(pose, obs.vCorners) - nearest.corners
             if np.abs(d).max() > 0.3:
                 false += 1
