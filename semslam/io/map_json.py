@@ -32,9 +32,10 @@ from semslam.io._json import (
     to_jsonable,
 )
 from semslam.io._schema import validate
+from semslam.io._tag import tag_fields, tag_to_dict
 from semslam.io._text import read_text
 from semslam.io.atomic import atomic_write_text
-from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag, TagFamily
+from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag
 
 MAP_FORMAT = "semslam-map"
 MAP_VERSION = 1
@@ -154,28 +155,12 @@ def _slot_from_field(f: Field) -> Slot:
 
 
 def _tag_to_dict(tag: Tag) -> dict[str, Any]:
-    x, y, yaw = (float(v) for v in np.asarray(tag.mTt, dtype=float).reshape(3))
-    return {
-        "family": TagFamily(tag.family).value,
-        "id": int(tag.tag_id),
-        "size": float(tag.size),
-        "x": x,
-        "y": y,
-        "yaw": yaw,
-        "height": float(tag.height),
-        "covariance": np.asarray(tag.covariance, dtype=float).tolist(),
-    }
+    return tag_to_dict(tag.family, tag.tag_id, tag.size, tag.mTt, tag.height, tag.covariance)
 
 
 def _tag_from_field(f: Field) -> Tag:
-    return Tag(
-        family=f["family"].choice(TagFamily),
-        tag_id=f["id"].integer(0),
-        size=f["size"].number(positive=True),
-        mTt=np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
-        height=f["height"].number(),
-        covariance=f["covariance"].array((3, 3)),
-    )
+    parts = tag_fields(f)
+    return Tag(mTt=parts.pop("pose"), **parts)
 
 
 def _marking_to_dict(marking: Marking) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from semslam.errors import FormatError
 from semslam.io._fields import Field
 from semslam.io._json import find_non_finite, first_line, non_finite_message
 from semslam.io._rows import check_time_order
+from semslam.io._tag import tag_fields, tag_to_dict
 from semslam.io._text import read_text
 from semslam.io.atomic import atomic_write_text
 from semslam.types import (
@@ -32,7 +33,6 @@ from semslam.types import (
     MarkingObservation,
     SlotKind,
     SlotObservation,
-    TagFamily,
     TagObservation,
 )
 
@@ -148,28 +148,12 @@ def _slot_from_field(f: Field) -> SlotObservation:
 
 
 def _tag_to_dict(tag: TagObservation) -> dict[str, Any]:
-    x, y, yaw = (float(v) for v in np.asarray(tag.vTt, dtype=float).reshape(3))
-    return {
-        "family": TagFamily(tag.family).value,
-        "id": int(tag.tag_id),
-        "size": float(tag.size),
-        "x": x,
-        "y": y,
-        "yaw": yaw,
-        "height": float(tag.height),
-        "covariance": np.asarray(tag.covariance, dtype=float).tolist(),
-    }
+    return tag_to_dict(tag.family, tag.tag_id, tag.size, tag.vTt, tag.height, tag.covariance)
 
 
 def _tag_from_field(f: Field) -> TagObservation:
-    return TagObservation(
-        family=f["family"].choice(TagFamily),
-        tag_id=f["id"].integer(0),
-        size=f["size"].number(positive=True),
-        vTt=np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
-        height=f["height"].number(),
-        covariance=f["covariance"].array((3, 3)),
-    )
+    parts = tag_fields(f)
+    return TagObservation(vTt=parts.pop("pose"), **parts)
 
 
 def _marking_to_dict(marking: MarkingObservation) -> dict[str, Any]:

@@ -1,0 +1,38 @@
+"""The JSON form of a tag, shared by the map (map frame) and observations (vehicle frame)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from semslam.io._fields import Field
+from semslam.types import TagFamily
+
+
+def tag_to_dict(family: TagFamily, tag_id: int, size: float, pose: Any, height: float,
+                covariance: Any) -> dict[str, Any]:
+    """``{"family", "id", "size", "x", "y", "yaw", "height", "covariance"}``."""
+    x, y, yaw = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+    return {
+        "family": TagFamily(family).value,
+        "id": int(tag_id),
+        "size": float(size),
+        "x": x,
+        "y": y,
+        "yaw": yaw,
+        "height": float(height),
+        "covariance": np.asarray(covariance, dtype=float).tolist(),
+    }
+
+
+def tag_fields(f: Field) -> dict[str, Any]:
+    """The checked parts of a tag dict: family, tag_id, size, pose (3,), height, covariance."""
+    return {
+        "family": f["family"].choice(TagFamily),
+        "tag_id": f["id"].integer(0),
+        "size": f["size"].number(positive=True),
+        "pose": np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
+        "height": f["height"].number(),
+        "covariance": f["covariance"].array((3, 3)),
+    }
