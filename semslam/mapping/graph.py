@@ -1,7 +1,9 @@
 """A small wrapper over GTSAM: variables, factors, iSAM2 updates, batch LM, marginals.
 
 Everything outside ``semslam.mapping`` speaks numpy poses ``(x, y, yaw)`` and
-points ``(x, y)``; this wrapper is where they become gtsam values.
+points ``(x, y)``; this wrapper is where they become gtsam values. Reading one
+variable asks iSAM2 for that variable only, so the work per keyframe does not
+grow with the size of the map.
 """
 
 from __future__ import annotations
@@ -19,37 +21,37 @@ class Graph:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
         params.relinearizeSkip = relinearize_skip
-        params.setFactorization(
-            "QR"
-        )  # Cholesky fails on the ill-conditioned steps null losses give
+        params.enablePartialRelinearizationCheck = True
+        params.setFactorization("QR")  # Cholesky fails on the ill-conditioned steps null losses give
         self.isam = gtsam.ISAM2(params)
         self.factors = gtsam.NonlinearFactorGraph()
-        self.estimate = gtsam.Values()
+        self._batch: gtsam.Values | None = None  # set by optimize_batch
+        self._keys: set[int] = set()
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
 
     # -- building
-    def add_pose(self, key: int, pose: FloatArray) -> None:
-        value = gtsam.Pose2(*map(float, pose))
+    def _insert(self, key: int, value) -> None:
         self._new_values.insert(key, value)
-        self.estimate.insert(key, value)
+        self._keys.add(key)
+        self._batch = None
+
+    def add_pose(self, key: int, pose: FloatArray) -> None:
+        self._insert(key, gtsam.Pose2(*map(float, pose)))
 
     def add_point(self, key: int, point: FloatArray) -> None:
-        value = np.asarray(point, dtype=float)
-        self._new_values.insert(key, value)
-        self.estimate.insert(key, value)
+        self._insert(key, np.asarray(point, dtype=float))
 
     def add_vector(self, key: int, vector: FloatArray) -> None:
-        value = np.asarray(vector, dtype=float)
-        self._new_values.insert(key, value)
-        self.estimate.insert(key, value)
+        self._insert(key, np.asarray(vector, dtype=float))
 
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
         self._new_factors.add(factor)
         self.factors.add(factor)
+        self._batch = None
 
     def has(self, key: int) -> bool:
-        return self.estimate.exists(key)
+        return key in self._keys
 
     # -- solving
     def update(self) -> None:
@@ -57,32 +59,54 @@ class Graph:
         self.isam.update(self._new_factors, self._new_values)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
-        self.estimate = self.isam.calculateEstimate()
 
-    def optimize_batch(self, max_iterations: int = 100) -> int:
-        """Levenberg-Marquardt over all factors from the current estimate; returns iterations."""
+    @property
+    def estimate(self) -> gtsam.Values:
+        """All variables: the batch solution if one is current, else iSAM2's."""
+        if self._batch is not None:
+            return self._batch
         if self._new_factors.size() or self._new_values.size():
             self.update()
+        return self.isam.calculateEstimate()
+
+    def optimize_batch(self, max_iterations: int = 100) -> int:
+        """Levenberg-Marquardt over all factors from iSAM2's estimate; returns iterations."""
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         params.setRelativeErrorTol(1e-7)
         optimizer = gtsam.LevenbergMarquardtOptimizer(self.factors, self.estimate, params)
-        self.estimate = optimizer.optimize()
+        self._batch = optimizer.optimize()
         return int(optimizer.iterations())
 
     def error(self) -> float:
         return float(self.factors.error(self.estimate))
 
-    # -- reading
+    # -- reading one variable
+    def _pending(self, key: int) -> bool:
+        return self._new_values.exists(key)
+
     def pose(self, key: int) -> FloatArray:
-        p = self.estimate.atPose2(key)
+        if self._batch is not None:
+            p = self._batch.atPose2(key)
+        elif self._pending(key):
+            p = self._new_values.atPose2(key)
+        else:
+            p = self.isam.calculateEstimatePose2(key)
         return np.array([p.x(), p.y(), p.theta()])
 
     def point(self, key: int) -> FloatArray:
-        return np.asarray(self.estimate.atPoint2(key), dtype=float)
+        if self._batch is not None:
+            return np.asarray(self._batch.atPoint2(key), dtype=float)
+        if self._pending(key):
+            return np.asarray(self._new_values.atPoint2(key), dtype=float)
+        return np.asarray(self.isam.calculateEstimatePoint2(key), dtype=float)
 
     def vector(self, key: int) -> FloatArray:
-        return np.asarray(self.estimate.atVector(key), dtype=float)
+        if self._batch is not None:
+            return np.asarray(self._batch.atVector(key), dtype=float)
+        if self._pending(key):
+            return np.asarray(self._new_values.atVector(key), dtype=float)
+        return np.asarray(self.isam.calculateEstimateVector(key), dtype=float)
 
     def marginals(self) -> gtsam.Marginals | None:
         """Marginal covariances at the current estimate (None if the system is singular)."""

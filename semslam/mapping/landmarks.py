@@ -53,16 +53,51 @@ def overlap_ratio(a: FloatArray, b: FloatArray) -> float:
     return float(shared) / min(area_a, area_b)
 
 
+_CELL = 4.0  # m, side of the spatial hash cells over landmark centres
+
+
 class SlotLandmarks:
-    """All slot landmarks; merged ones stay (their variables do) but are inactive."""
+    """All slot landmarks, with a spatial hash of their centres so that every query
+    touches only the neighbourhood (mapping time stays linear in the drive length).
+    Merged landmarks stay (their variables do) but are inactive."""
 
     def __init__(self) -> None:
         self.items: list[SlotLandmark] = []
+        self._grid: dict[tuple[int, int], set[int]] = defaultdict(set)
+        self._cell: dict[int, tuple[int, int]] = {}
+
+    @staticmethod
+    def _cell_of(point: FloatArray) -> tuple[int, int]:
+        return int(np.floor(point[0] / _CELL)), int(np.floor(point[1] / _CELL))
 
     def add(self, corners: FloatArray, kind: SlotKind) -> SlotLandmark:
         landmark = SlotLandmark(len(self.items), np.array(corners, dtype=float), kind)
         self.items.append(landmark)
+        self.set_corners(landmark.index, landmark.corners)
         return landmark
+
+    def set_corners(self, index: int, corners: FloatArray) -> None:
+        """Move landmark ``index`` to new corner estimates (4, 2)."""
+        self.items[index].corners = np.asarray(corners, dtype=float)
+        cell = self._cell_of(self.items[index].corners.mean(axis=0))
+        old = self._cell.get(index)
+        if old != cell:
+            if old is not None:
+                self._grid[old].discard(index)
+            self._grid[cell].add(index)
+            self._cell[index] = cell
+
+    def near(self, point: FloatArray, radius: float) -> list[SlotLandmark]:
+        """Active landmarks whose centre cell lies within ``radius`` (m) of ``point``."""
+        reach = int(np.ceil(radius / _CELL))
+        ci, cj = self._cell_of(point)
+        out = []
+        for i in range(ci - reach, ci + reach + 1):
+            for j in range(cj - reach, cj + reach + 1):
+                for index in self._grid.get((i, j), ()):
+                    if self.items[index].merged_into is None:
+                        out.append(self.items[index])
+        return sorted(out, key=lambda s: s.index)
 
     def active(self) -> list[SlotLandmark]:
         return [s for s in self.items if s.merged_into is None]
@@ -89,52 +124,46 @@ class SlotLandmarks:
         active landmarks within ``gate`` and, when the observation's label is
         confident, the landmark holding that label within ``id_gate``.
         """
-        active = self.active()
-        if not active:
+        nearby = self.near(corners.mean(axis=0), max(gate, id_gate) + 1.0)
+        if not nearby:
             return []
-        stack = np.array([s.corners for s in active])
-        d = mean_corner_distance(corners, stack)
-        order = np.argsort(d)
+        d = mean_corner_distance(corners, np.array([s.corners for s in nearby]))
+        order = np.argsort(d, kind="stable")
         out: dict[int, tuple[int, float, bool]] = {}
         for k in order[:max_candidates]:
             if d[k] <= gate:
-                out[active[k].index] = (active[k].index, float(d[k]), False)
+                out[nearby[k].index] = (nearby[k].index, float(d[k]), False)
         if label is not None and label_confidence >= id_confidence:
             for k in order:
                 if d[k] > id_gate:
                     break
-                if active[k].best_label()[0] == label:
-                    out[active[k].index] = (active[k].index, float(d[k]), True)
+                if nearby[k].best_label()[0] == label:
+                    out[nearby[k].index] = (nearby[k].index, float(d[k]), True)
                     break
         return sorted(out.values(), key=lambda c: c[1])
 
     def overlapping(self, corners: FloatArray, threshold: float) -> bool:
         """Does a slot at ``corners`` (4, 2) overlap an active landmark by more than
         ``threshold`` of the smaller area?"""
-        centre = corners.mean(axis=0)
-        for s in self.active():
-            if (
-                np.linalg.norm(s.corners.mean(axis=0) - centre) < 7.0
-                and overlap_ratio(corners, s.corners) > threshold
-            ):
-                return True
-        return False
+        return any(overlap_ratio(corners, s.corners) > threshold
+                   for s in self.near(corners.mean(axis=0), 7.0))
 
-    def duplicates(self, distance: float) -> list[tuple[int, int]]:
-        """Pairs (keep, drop) of active landmarks closer than ``distance`` whose labels do
-        not contradict each other (equal, or one of them without a confident label)."""
-        active = self.active()
-        if len(active) < 2:
+    def duplicates(self, distance: float, around: FloatArray, radius: float) -> list[tuple[int, int]]:
+        """Pairs (keep, drop) of active landmarks within ``radius`` of ``around`` closer than
+        ``distance`` to each other whose labels do not contradict each other (equal, or one
+        of them without a confident label)."""
+        nearby = self.near(around, radius)
+        if len(nearby) < 2:
             return []
-        stack = np.array([s.corners for s in active])
+        stack = np.array([s.corners for s in nearby])
         pairs = []
         taken: set[int] = set()
-        for i, a in enumerate(active):
+        for i, a in enumerate(nearby):
             if a.index in taken:
                 continue
             d = mean_corner_distance(a.corners, stack[i + 1 :])
             for j in np.flatnonzero(d < distance):
-                b = active[i + 1 + j]
+                b = nearby[i + 1 + j]
                 if b.index in taken or b.kind != a.kind:
                     continue
                 (la, ca), (lb, cb) = a.best_label(), b.best_label()

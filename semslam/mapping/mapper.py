@@ -64,6 +64,9 @@ _SHAPE_PRIORS = {  # (right angles, entrance width m, depth m, width sigma, dept
 }
 
 
+_REFRESH_RADIUS = 25.0  # m around the car where landmark estimates are kept current
+
+
 class SightingStatus(StrEnum):
     """What became of one slot observation (the association audit)."""
 
@@ -360,21 +363,27 @@ class Mapper:
     def _calibrating(self) -> bool:
         return self.use_graph and self.cfg.calibrate_odometry
 
-    def _refresh_estimates(self) -> None:
+    def _refresh_estimates(self, everything: bool = False) -> None:
+        """Copy estimates back: the latest keyframes and the landmarks near the car (all of
+        them at the end), so the work per update does not grow with the map."""
         g = self.graph
         if self._calibrating:
             window = (len(self.keyframe_times) - 1) // self.cfg.calibration_window
             while window > 0 and not g.has(K(window)):
                 window -= 1
             self.calibration = g.vector(K(window))
-        for k in range(len(self.keyframe_poses)):
+        first = 0 if everything else max(0, len(self.keyframe_poses) - 2 * self.cfg.update_every)
+        for k in range(first, len(self.keyframe_poses)):
             if g.has(X(k)):
                 self.keyframe_poses[k] = g.pose(X(k))
-        for s in self.slots.items:
-            s.corners = np.array([g.point(C(4 * s.index + c)) for c in range(4)])
+        landmarks = (self.slots.items if everything
+                     else self.slots.near(self.keyframe_poses[-1][:2], _REFRESH_RADIUS))
+        for s in landmarks:
+            self.slots.set_corners(s.index, np.array([g.point(C(4 * s.index + c)) for c in range(4)]))
 
     def _merge_duplicates(self) -> None:
-        for keep, drop in self.slots.duplicates(self.cfg.merge_distance):
+        around = self.keyframe_poses[-1][:2]
+        for keep, drop in self.slots.duplicates(self.cfg.merge_distance, around, _REFRESH_RADIUS):
             noise = gtsam.noiseModel.Isotropic.Sigma(2, 0.005)
             for c in range(4):
                 self.graph.add_factor(
@@ -390,12 +399,12 @@ class Mapper:
         if self.use_graph:
             self.graph.update()
             iterations = self.graph.optimize_batch()
-            self._refresh_estimates()
+            self._refresh_estimates(everything=True)
             marginals = self.graph.marginals()
             self._decide_components()
         else:
             for index, sums in self._slot_observation_sums.items():
-                self.slots.items[index].corners = np.mean(sums, axis=0)
+                self.slots.set_corners(index, np.mean(sums, axis=0))
         semantic_map, slot_of_landmark = self._export(marginals)
         stats = {
             "keyframes": len(self.keyframe_times),
