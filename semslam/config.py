@@ -116,6 +116,10 @@ class MappingConfig(_Section):
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
     update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
+    relinearize_threshold: float = Field(
+        1.0, gt=0, description="iSAM2: relinearise beyond (the final batch relinearises all)"
+    )
+    relinearize_skip: int = Field(5, ge=1, description="iSAM2: updates between relinearisations")
     speed_sigma: float = Field(0.03, gt=0, description="odometry model: speed noise, m/s")
     speed_scale_sigma: float = Field(
         0.002, ge=0, description="odometry model: scale error left after calibration"

@@ -123,7 +123,7 @@ class Mapper:
         self.use_graph = config.optimizer == "isam2"
         self.robust = config.robust == "maxmix"
         self.null = NullHypothesis(config.null_weight, config.null_information_scale)
-        self.graph = Graph()
+        self.graph = Graph(config.relinearize_threshold, config.relinearize_skip)
         self.slots = SlotLandmarks()
         self.pool = SlotPool(config.pool_radius, config.pool_max_age)
         self.sightings: list[Sighting] = []
@@ -376,10 +376,15 @@ class Mapper:
         for k in range(first, len(self.keyframe_poses)):
             if g.has(X(k)):
                 self.keyframe_poses[k] = g.pose(X(k))
-        landmarks = (self.slots.items if everything
-                     else self.slots.near(self.keyframe_poses[-1][:2], _REFRESH_RADIUS))
+        landmarks = (
+            self.slots.items
+            if everything
+            else self.slots.near(self.keyframe_poses[-1][:2], _REFRESH_RADIUS)
+        )
         for s in landmarks:
-            self.slots.set_corners(s.index, np.array([g.point(C(4 * s.index + c)) for c in range(4)]))
+            self.slots.set_corners(
+                s.index, np.array([g.point(C(4 * s.index + c)) for c in range(4)])
+            )
 
     def _merge_duplicates(self) -> None:
         around = self.keyframe_poses[-1][:2]
