@@ -35,19 +35,23 @@ def slot_observation_residual(pose_key: int, corner_keys: Sequence[int], measure
 
     def residual(values: gtsam.Values, want_jacobians: bool):
         pose = values.atPose2(pose_key)
-        r = np.empty(8)
-        H_pose = np.empty((8, 3))
-        H_corners: dict[int, FloatArray] = {}
-        for k, key in enumerate(corner_keys):
-            q, Hp, Hc = point_in_pose(pose, values.atPoint2(key))
-            r[2 * k : 2 * k + 2] = q - z[k]
-            if want_jacobians:
-                H_pose[2 * k : 2 * k + 2] = Hp
-                block = np.zeros((8, 2))
-                block[2 * k : 2 * k + 2] = Hc
-                H_corners[key] = block
+        c, s = np.cos(pose.theta()), np.sin(pose.theta())
+        Rt = np.array([[c, s], [-s, c]])
+        points = np.array([values.atPoint2(key) for key in corner_keys])  # (4, 2)
+        q = (points - np.array([pose.x(), pose.y()])) @ Rt.T  # vehicle-frame corners
+        r = (q - z).reshape(8)
         if not want_jacobians:
             return r, None
+        H_pose = np.zeros((8, 3))
+        H_pose[0::2, 0] = -1.0
+        H_pose[1::2, 1] = -1.0
+        H_pose[0::2, 2] = q[:, 1]
+        H_pose[1::2, 2] = -q[:, 0]
+        H_corners: dict[int, FloatArray] = {}
+        for k, key in enumerate(corner_keys):
+            block = np.zeros((8, 2))
+            block[2 * k : 2 * k + 2] = Rt
+            H_corners[key] = block
         return r, {pose_key: H_pose, **H_corners}
 
     return residual
