@@ -122,6 +122,33 @@ def map_command(
     print_map_summary(summary)
 
 
+class RobustMode(StrEnum):
+    maxmix = "maxmix"
+    none = "none"
+
+
+@app.command()
+def optimize(
+    graph: Annotated[Path, typer.Argument(metavar="GRAPH.g2o", help="2D g2o pose graph.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Optimised graph to write.")],
+    robust: Annotated[
+        RobustMode, typer.Option(help="maxmix: EDGE_SE2_MIXTURE as max-mixtures; none: LS.")
+    ] = RobustMode.maxmix,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Solve a g2o pose graph (EDGE_SE2_MIXTURE edges read as max-mixtures with null)."""
+    from semslam.pipeline.optimize import optimize_g2o_file
+    from semslam.reporting import print_metrics
+
+    try:
+        summary = optimize_g2o_file(graph, output, robust.value)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    if not json_output:
+        summary.pop("chosen", None)  # one index per mixture: for scripts, not for a table
+    print_metrics("semslam optimize", summary, json_output)
+
+
 evaluate_app = typer.Typer(
     help="Score outputs against ground truth (JSON for scripts).", no_args_is_help=True
 )

@@ -176,3 +176,25 @@ def test_map_refuses_missing_drive_and_unknown_observations(small_drive, tmp_pat
     result = _run("map", small_drive, "-o", tmp_path / "m.json", "--observations", "images")
     assert result.exit_code == 2 and "perception models" in result.stderr
     assert not (tmp_path / "m.json").exists()
+
+
+def test_optimize_solves_a_small_g2o_graph_and_refuses_a_broken_one(tmp_path):
+    lines = ["VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1.1 0.1 0.05", "VERTEX_SE2 2 2.2 -0.1 0"]
+    info = "100 0 0 100 0 1000"
+    lines += [
+        f"EDGE_SE2 0 1 1 0 0 {info}",
+        f"EDGE_SE2 1 2 1 0 0 {info}",
+        f"EDGE_SE2_MIXTURE 0 2 2 EDGE_SE2 1 0 2 2 0 0 {info} "
+        f"EDGE_SE2 0.01 0 2 2 0 0 {' '.join('1e-9' if v != '0' else '0' for v in info.split())}",
+    ]
+    graph = tmp_path / "g.g2o"
+    graph.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.g2o"
+    result = _run("optimize", graph, "-o", out, "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["mixtures"] == 1 and summary["accepted"] == 1
+    assert "VERTEX_SE2 2 2" in out.read_text()
+    graph.write_text("VERTEX_SE2 0 0 0\n")
+    result = _run("optimize", graph, "-o", out)
+    assert result.exit_code == 2 and "line 1" in result.stderr

@@ -1,0 +1,450 @@
+"""2D g2o pose graphs: poses, relative-pose edges, max-mixture edges, point landmarks.
+
+Lines (whitespace-separated; blank lines and ``#`` comments are skipped)::
+
+    VERTEX_SE2 id x y yaw
+    VERTEX_XY id x y
+    EDGE_SE2 a b x y yaw I11 I12 I13 I22 I23 I33
+    EDGE_SE2_XY a b x y I11 I12 I22                  (pose a observes point b)
+    EDGE_SE2_MIXTURE va vb n  EDGE_SE2 w a b x y yaw I11 I12 I13 I22 I23 I33  (n times)
+    FIX id [id ...]
+
+The information matrices are the upper triangle of a symmetric matrix, row
+by row. ``EDGE_SE2_MIXTURE`` is the format of the max-mixture benchmark files
+(Olson & Agarwal; agpratik/max-mixture): ``n`` weighted components, each a
+relative-pose measurement that may join another pose pair than the header's
+``va vb`` (multimodal data association); the weights are kept as written
+(they need not sum to 1) and the null hypothesis is simply a component with a
+tiny information.
+
+Vertex ids of poses and points share one id space, as in g2o. Edges and
+mixtures may come before the vertices they name; the reader checks every
+reference at the end and names the edge's line. The writer puts vertices
+first, then edges, landmark edges, mixtures and FIX, each in its own order:
+a round trip keeps every list and its order, not the interleaving of an
+original file. Numbers are written with Python's shortest exact repr, so a
+round trip is bit-exact.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from semslam.errors import FormatError
+from semslam.geometry import FloatArray
+from semslam.io._rows import parse_number
+from semslam.io._text import read_text
+from semslam.io.atomic import atomic_write_text
+
+VERTEX_SE2 = "VERTEX_SE2"
+VERTEX_XY = "VERTEX_XY"
+EDGE_SE2 = "EDGE_SE2"
+EDGE_SE2_XY = "EDGE_SE2_XY"
+EDGE_SE2_MIXTURE = "EDGE_SE2_MIXTURE"
+FIX = "FIX"
+
+_TAGS = (VERTEX_SE2, VERTEX_XY, EDGE_SE2, EDGE_SE2_XY, EDGE_SE2_MIXTURE, FIX)
+_SE2_INFO = ("I11", "I12", "I13", "I22", "I23", "I33")
+_XY_INFO = ("I11", "I12", "I22")
+
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass(frozen=True, eq=False)
+class Edge2D:
+    """A relative-pose measurement ``aTb`` between poses ``a`` and ``b``.
+
+    Attributes:
+        a, b: vertex ids.
+        measurement: (3,) ``(x, y, yaw)`` of b in a's frame; metres, radians (as written,
+            not wrapped).
+        information: (3, 3) symmetric positive-definite inverse covariance.
+    """
+
+    a: int
+    b: int
+    measurement: FloatArray
+    information: FloatArray
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, Edge2D)
+            and (self.a, self.b) == (other.a, other.b)
+            and np.array_equal(self.measurement, other.measurement)
+            and np.array_equal(self.information, other.information)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, eq=False)
+class PointEdge2D:
+    """Pose ``a`` observes point ``b`` at ``measurement`` (2,) in its own frame, metres,
+    with (2, 2) information."""
+
+    a: int
+    b: int
+    measurement: FloatArray
+    information: FloatArray
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, PointEdge2D)
+            and (self.a, self.b) == (other.a, other.b)
+            and np.array_equal(self.measurement, other.measurement)
+            and np.array_equal(self.information, other.information)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class MixtureComponent:
+    """One hypothesis of a mixture edge: a prior ``weight`` (> 0) and its measurement."""
+
+    weight: float
+    edge: Edge2D
+
+
+@dataclass(frozen=True)
+class MixtureEdge2D:
+    """A max-mixture edge: header pose pair ``(a, b)`` and its weighted components."""
+
+    a: int
+    b: int
+    components: tuple[MixtureComponent, ...]
+
+
+@dataclass
+class PoseGraph2D:
+    """A 2D pose graph as read from or written to g2o.
+
+    Attributes:
+        vertices: pose id -> (3,) ``(x, y, yaw)`` (the initial guess, or the solution).
+        edges: plain relative-pose edges, in file order.
+        mixtures: max-mixture edges, in file order.
+        points: point-landmark id -> (2,) ``(x, y)``.
+        point_edges: pose-to-point observations, in file order.
+        fixed: ids named by FIX lines, in file order.
+    """
+
+    vertices: dict[int, FloatArray] = field(default_factory=dict)
+    edges: list[Edge2D] = field(default_factory=list)
+    mixtures: list[MixtureEdge2D] = field(default_factory=list)
+    points: dict[int, FloatArray] = field(default_factory=dict)
+    point_edges: list[PointEdge2D] = field(default_factory=list)
+    fixed: list[int] = field(default_factory=list)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PoseGraph2D):
+            return NotImplemented
+        return (
+            _same_arrays(self.vertices, other.vertices)
+            and _same_arrays(self.points, other.points)
+            and self.edges == other.edges
+            and self.mixtures == other.mixtures
+            and self.point_edges == other.point_edges
+            and self.fixed == other.fixed
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _same_arrays(a: dict[int, FloatArray], b: dict[int, FloatArray]) -> bool:
+    return list(a) == list(b) and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def information_from_upper(values: ArrayLike) -> FloatArray:
+    """The symmetric matrix whose upper triangle, row by row, is ``values``
+    (6 values -> 3x3, 3 values -> 2x2)."""
+    v = np.asarray(values, dtype=float)
+    n = {6: 3, 3: 2}.get(v.size)
+    if n is None:
+        raise ValueError(f"expected 3 or 6 upper-triangle values, got {v.size}")
+    m = np.zeros((n, n))
+    m[np.triu_indices(n)] = v
+    return m + np.triu(m, 1).T
+
+
+def information_upper(information: FloatArray) -> FloatArray:
+    """The upper triangle of a symmetric matrix, row by row."""
+    m = np.asarray(information, dtype=float)
+    return m[np.triu_indices(m.shape[0])]
+
+
+def _positive_definite(m: FloatArray) -> bool:
+    try:
+        np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+class _Tokens:
+    """The tokens of one line, consumed left to right with checked conversions."""
+
+    def __init__(self, tokens: list[str], where: str) -> None:
+        self.tokens = tokens
+        self.pos = 0
+        self.where = where
+
+    def fail(self, what: str) -> FormatError:
+        return FormatError(f"{self.where}: {what}")
+
+    def _next(self, name: str) -> str:
+        if self.pos >= len(self.tokens):  # callers check counts first; kept as a guard
+            raise self.fail(f"missing {name}")
+        tok = self.tokens[self.pos]
+        self.pos += 1
+        return tok
+
+    def integer(self, name: str) -> int:
+        tok = self._next(name)
+        try:
+            value = int(tok)
+        except ValueError:
+            raise self.fail(f"{name} is not an integer id ({tok!r})") from None
+        if value < 0:
+            raise self.fail(f"{name} must be >= 0, got {value}")
+        return value
+
+    def number(self, name: str) -> float:
+        return parse_number(self._next(name), self.where, name, FormatError)
+
+    def numbers(self, names: tuple[str, ...]) -> FloatArray:
+        return np.array([self.number(n) for n in names])
+
+    def information(self, names: tuple[str, ...], what: str) -> FloatArray:
+        info = information_from_upper(self.numbers(names))
+        if not _positive_definite(info):
+            raise self.fail(f"{what} information matrix is not positive definite")
+        return info
+
+
+def _expect(tokens: list[str], count: int, where: str, form: str) -> None:
+    if len(tokens) != count:
+        raise FormatError(f"{where}: expected {count} fields ({form}), got {len(tokens)}")
+
+
+_FORMS = {
+    VERTEX_SE2: "VERTEX_SE2 id x y yaw",
+    VERTEX_XY: "VERTEX_XY id x y",
+    EDGE_SE2: "EDGE_SE2 a b x y yaw I11 I12 I13 I22 I23 I33",
+    EDGE_SE2_XY: "EDGE_SE2_XY a b x y I11 I12 I22",
+}
+
+
+def _read_edge(t: _Tokens, what: str = "edge") -> Edge2D:
+    a = t.integer("a")
+    b = t.integer("b")
+    if a == b:
+        raise t.fail(f"{what} joins vertex {a} to itself")
+    measurement = t.numbers(("x", "y", "yaw"))
+    return Edge2D(a, b, measurement, t.information(_SE2_INFO, what))
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def parse_g2o(text: str, name: str = "<g2o>") -> PoseGraph2D:
+    """Parse g2o text; ``name`` is used in messages (see :func:`read_g2o`)."""
+    graph = PoseGraph2D()
+    # (line, description, pose ids, point ids) of every reference, checked at the end
+    refs: list[tuple[str, str, tuple[int, ...], tuple[int, ...]]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        body = line.split("#", 1)[0].strip()
+        if not body:
+            continue
+        where = f"{name} line {lineno}"
+        tokens = body.split()
+        tag = tokens[0]
+        if tag not in _TAGS:
+            raise FormatError(f"{where}: unknown tag {tag!r} (expected one of: {', '.join(_TAGS)})")
+        t = _Tokens(tokens, where)
+        t.pos = 1
+        if tag in _FORMS:
+            _expect(tokens, len(_FORMS[tag].split()), where, _FORMS[tag])
+        if tag == VERTEX_SE2:
+            vid = t.integer("id")
+            value = t.numbers(("x", "y", "yaw"))
+            if vid in graph.vertices or vid in graph.points:
+                raise t.fail(f"vertex {vid} defined twice")
+            graph.vertices[vid] = value
+        elif tag == VERTEX_XY:
+            vid = t.integer("id")
+            value = t.numbers(("x", "y"))
+            if vid in graph.vertices or vid in graph.points:
+                raise t.fail(f"vertex {vid} defined twice")
+            graph.points[vid] = value
+        elif tag == EDGE_SE2:
+            edge = _read_edge(t)
+            graph.edges.append(edge)
+            refs.append((where, "edge", (edge.a, edge.b), ()))
+        elif tag == EDGE_SE2_XY:
+            a = t.integer("a")
+            b = t.integer("b")
+            measurement = t.numbers(("x", "y"))
+            info = t.information(_XY_INFO, "edge")
+            graph.point_edges.append(PointEdge2D(a, b, measurement, info))
+            refs.append((where, "edge", (a,), (b,)))
+        elif tag == EDGE_SE2_MIXTURE:
+            graph.mixtures.append(_read_mixture(t, tokens, where))
+            mix = graph.mixtures[-1]
+            ids = (mix.a, mix.b) + tuple(i for c in mix.components for i in (c.edge.a, c.edge.b))
+            refs.append((where, "mixture edge", ids, ()))
+        else:  # FIX
+            if len(tokens) < 2:
+                raise t.fail("expected FIX id [id ...]")
+            ids = tuple(t.integer("id") for _ in tokens[1:])
+            graph.fixed.extend(ids)
+            refs.append((where, "FIX", ids, ()))
+    for where, what, pose_ids, point_ids in refs:
+        for vid in pose_ids:
+            if vid not in graph.vertices:
+                raise FormatError(f"{where}: {what} names pose vertex {vid}, which is not defined")
+        for vid in point_ids:
+            if vid not in graph.points:
+                raise FormatError(f"{where}: {what} names point vertex {vid}, which is not defined")
+    return graph
+
+
+def _read_mixture(t: _Tokens, tokens: list[str], where: str) -> MixtureEdge2D:
+    form = "EDGE_SE2_MIXTURE va vb n, then n times EDGE_SE2 w a b x y yaw I11 I12 I13 I22 I23 I33"
+    if len(tokens) < 4:
+        raise FormatError(f"{where}: expected at least 4 fields ({form}), got {len(tokens)}")
+    va = t.integer("va")
+    vb = t.integer("vb")
+    n = t.integer("n")
+    if n < 1:
+        raise t.fail("a mixture edge needs at least 1 component, got 0")
+    per = 1 + len(_FORMS[EDGE_SE2].split())  # tag + w + a b x y yaw + 6 information
+    _expect(tokens, 4 + n * per, where, f"{form}; n = {n}")
+    components = []
+    for k in range(1, n + 1):
+        tag = t._next("component tag")
+        if tag != EDGE_SE2:
+            raise t.fail(f"component {k}: expected tag {EDGE_SE2}, got {tag!r}")
+        weight = t.number(f"component {k} weight")
+        if weight <= 0:
+            raise t.fail(f"component {k}: weight must be > 0, got {weight!r}")
+        components.append(MixtureComponent(weight, _read_edge(t, f"component {k}")))
+    return MixtureEdge2D(va, vb, tuple(components))
+
+
+def read_g2o(path: str | os.PathLike[str]) -> PoseGraph2D:
+    """Read a 2D g2o pose graph (see the module doc for the lines understood).
+
+    Raises:
+        FormatError: missing or unreadable file, unknown tag, wrong field count, a
+            non-number, NaN or infinity, a negative or non-integer id, a vertex defined
+            twice, an edge joining a vertex to itself or naming an undefined vertex, a
+            non-positive weight or an information matrix that is not positive definite;
+            the one-line message is ``"<file> line N: ..."``.
+    """
+    return parse_g2o(read_text(path, FormatError), os.fspath(path))
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def _edge_fields(e: Edge2D) -> list[str]:
+    return [
+        str(e.a),
+        str(e.b),
+        *(_num(v) for v in e.measurement),
+        *(_num(v) for v in information_upper(e.information)),
+    ]
+
+
+def format_g2o(graph: PoseGraph2D, name: str = "<g2o>") -> str:
+    """The g2o text of ``graph``; refuses what :func:`parse_g2o` would refuse."""
+    lines = []
+    for vid, v in graph.vertices.items():
+        lines.append(" ".join([VERTEX_SE2, str(vid), *(_num(x) for x in v)]))
+    for vid, p in graph.points.items():
+        lines.append(" ".join([VERTEX_XY, str(vid), *(_num(x) for x in p)]))
+    for e in graph.edges:
+        lines.append(" ".join([EDGE_SE2, *_edge_fields(e)]))
+    for pe in graph.point_edges:
+        lines.append(
+            " ".join(
+                [
+                    EDGE_SE2_XY,
+                    str(pe.a),
+                    str(pe.b),
+                    *(_num(x) for x in pe.measurement),
+                    *(_num(x) for x in information_upper(pe.information)),
+                ]
+            )
+        )
+    for m in graph.mixtures:
+        parts = [EDGE_SE2_MIXTURE, str(m.a), str(m.b), str(len(m.components))]
+        for c in m.components:
+            parts += [EDGE_SE2, _num(c.weight), *_edge_fields(c.edge)]
+        lines.append(" ".join(parts))
+    if graph.fixed:
+        lines.append(" ".join([FIX, *(str(i) for i in graph.fixed)]))
+    text = "\n".join(lines) + "\n"
+    try:
+        parse_g2o(text, "output")  # refuse to write what would not read back
+    except FormatError as exc:
+        raise FormatError(
+            f"{name}: refusing to write a graph that would not read back ({exc})"
+        ) from None
+    return text
+
+
+def write_g2o(path: str | os.PathLike[str], graph: PoseGraph2D) -> None:
+    """Write ``graph`` as g2o text, atomically.
+
+    Raises:
+        FormatError: the graph would not read back (NaN, undefined vertex, an information
+            matrix that is not positive definite...); the target is left unchanged.
+    """
+    name = os.fspath(path)
+    _check_shapes(graph, name)
+    atomic_write_text(path, format_g2o(graph, name))
+
+
+def _check_shapes(graph: PoseGraph2D, name: str) -> None:
+    def bad(what: str) -> FormatError:
+        return FormatError(f"{name}: {what}")
+
+    for vid, v in graph.vertices.items():
+        if np.shape(v) != (3,):
+            raise bad(f"pose vertex {vid} must be (x, y, yaw), got shape {np.shape(v)}")
+    for vid, p in graph.points.items():
+        if np.shape(p) != (2,):
+            raise bad(f"point vertex {vid} must be (x, y), got shape {np.shape(p)}")
+    edges = list(graph.edges) + [c.edge for m in graph.mixtures for c in m.components]
+    for e in edges:
+        if np.shape(e.measurement) != (3,) or np.shape(e.information) != (3, 3):
+            raise bad(f"edge {e.a}-{e.b} needs a (3,) measurement and (3, 3) information")
+        if not np.array_equal(e.information, np.transpose(e.information)):
+            raise bad(f"edge {e.a}-{e.b} information is not symmetric")
+    for pe in graph.point_edges:
+        if np.shape(pe.measurement) != (2,) or np.shape(pe.information) != (2, 2):
+            raise bad(f"edge {pe.a}-{pe.b} needs a (2,) measurement and (2, 2) information")
+        if not np.array_equal(pe.information, np.transpose(pe.information)):
+            raise bad(f"edge {pe.a}-{pe.b} information is not symmetric")
+    for m in graph.mixtures:
+        if not m.components:
+            raise bad(f"mixture edge {m.a}-{m.b} has no components")
+    for v in list(graph.vertices.values()) + list(graph.points.values()):
+        if not np.all(np.isfinite(v)):
+            raise bad("a vertex has a NaN or infinite coordinate")
+    if any(not math.isfinite(c.weight) for m in graph.mixtures for c in m.components):
+        raise bad("a mixture weight is NaN or infinite")
