@@ -158,7 +158,7 @@ def test_map_writes_a_valid_map_and_its_by_products(small_drive, tmp_path):
     out = tmp_path / "garage.json"
     result = _run("map", small_drive, "-o", out, "--observations", "noisy", "--no-progress")
     assert result.exit_code == 0, result.output
-    for suffix in (".json", ".trajectory.tum", ".audit.jsonl", ".config.json"):
+    for suffix in (".json", ".trajectory.tum", ".audit.jsonl", ".config.json", ".g2o"):
         assert (tmp_path / f"garage{suffix}").stat().st_size > 0
     metrics = json.loads(
         _run("evaluate", "map", out, "--truth", small_drive / "world.json", "--json").stdout
@@ -168,6 +168,10 @@ def test_map_writes_a_valid_map_and_its_by_products(small_drive, tmp_path):
         json.loads(line) for line in (tmp_path / "garage.audit.jsonl").read_text().splitlines()
     ]
     assert {a["status"] for a in audit} <= {"accepted", "null", "reassigned", "pooled"}
+    # the exported graph reads back and solves
+    solved = _run("optimize", tmp_path / "garage.g2o", "-o", tmp_path / "solved.g2o", "--json")
+    assert solved.exit_code == 0, solved.output
+    assert json.loads(solved.stdout)["poses"] > 10
 
 
 def test_map_refuses_missing_drive_and_unknown_observations(small_drive, tmp_path):

@@ -99,6 +99,8 @@ class MappingResult:
     keyframe_poses: FloatArray
     sightings: tuple[Sighting, ...]
     statistics: dict
+    odometry_edges: tuple  # (k-1, k, relative pose (3,) after calibration, covariance (3, 3))
+    tag_edges: tuple  # (keyframe, tag id, vTt (3,), covariance (3, 3))
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
@@ -136,6 +138,8 @@ class Mapper:
         self._slot_observation_sums: dict[int, list[FloatArray]] = {}
         self.calibration = np.array([1.0, 0.0])  # current (speed scale, gyro bias) estimate
         self._label_votes: list[tuple[int, str, float]] = []  # from frames between keyframes
+        self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
+        self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
 
     # ------------------------------------------------------------------ frames
     def add_frame(self, frame: FrameObservations) -> bool:
@@ -191,6 +195,7 @@ class Mapper:
                 )
             return
         delta, cov, J = odometry
+        self.odometry_edges.append((k - 1, k, delta, cov, J))
         noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         if J is None:
             self.graph.add_factor(
@@ -238,6 +243,7 @@ class Mapper:
         if not self.graph.has(key):
             self.graph.add_pose(key, compose(pose, tag.vTt))
         cov = 0.5 * (tag.covariance + tag.covariance.T) + np.eye(3) * 1e-8
+        self.tag_edges.append((k, tag.tag_id, np.asarray(tag.vTt, dtype=float), cov))
         self.graph.add_factor(
             gtsam.BetweenFactorPose2(
                 X(k), key, gtsam.Pose2(*tag.vTt), gtsam.noiseModel.Gaussian.Covariance(cov)
@@ -436,6 +442,11 @@ class Mapper:
             np.array(self.keyframe_poses),
             tuple(self.sightings),
             stats,
+            tuple(
+                (a, b, d if J is None else d + J @ (self.calibration - [1.0, 0.0]), c)
+                for a, b, d, c, J in self.odometry_edges
+            ),
+            tuple(self.tag_edges),
             slot_of_landmark,
         )
 

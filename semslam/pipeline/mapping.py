@@ -1,6 +1,7 @@
 """`semslam map`: build a map from a drive folder and write it with its by-products.
 
-Writes, next to ``MAP.json``: ``MAP.trajectory.tum`` (keyframes, TUM),
+Writes, next to ``MAP.json``: ``MAP.trajectory.tum`` (keyframes, TUM), ``MAP.g2o``
+(the graph, for the usual tools),
 ``MAP.audit.jsonl`` (what became of every slot observation),
 ``MAP.config.json`` (the configuration used).
 """
@@ -62,6 +63,8 @@ def build_map(
     """Map the drive at ``drive_folder`` and write ``map_path`` and its siblings."""
     from semslam.io import Drive, save_map, write_tum
     from semslam.io.atomic import atomic_write_text
+    from semslam.io.g2o import write_g2o
+    from semslam.mapping.export import to_pose_graph
     from semslam.mapping.mapper import Mapper
 
     drive = Drive.open(drive_folder)
@@ -101,6 +104,7 @@ def build_map(
     )
     save_map(map_path, semantic_map)
     write_tum(_sibling(map_path, ".trajectory.tum"), result.keyframe_times, result.keyframe_poses)
+    write_g2o(_sibling(map_path, ".g2o"), to_pose_graph(replace(result, map=semantic_map)))
     atomic_write_text(_sibling(map_path, ".audit.jsonl"), _audit_jsonl(result))
     atomic_write_text(_sibling(map_path, ".config.json"), config_to_json(config))
     return MapSummary(
