@@ -16,21 +16,31 @@ from numpy.typing import ArrayLike
 
 from semslam.geometry import FloatArray, wrap_angle
 
-# Below this |yaw_rate * dt| the arc formulas lose precision; a second-order
-# series is used instead (continuous with the exact formula).
-_SMALL_TURN = 1e-6
+# Below this |yaw_rate * dt| the arc functions use their Taylor series (error ~ a^5).
+_SERIES_TURN = 1e-2
+
+
+def _arc_functions(a: float) -> tuple[float, float, float, float]:
+    """``f1 = sin(a)/a``, ``f2 = (1 - cos a)/a`` and their derivatives, stable at a -> 0."""
+    if abs(a) < _SERIES_TURN:
+        a2 = a * a
+        return (
+            1 - a2 / 6 + a2 * a2 / 120,
+            a / 2 - a * a2 / 24,
+            -a / 3 + a * a2 / 30,
+            0.5 - a2 / 8 + a2 * a2 / 144,
+        )
+    s, c = math.sin(a), math.cos(a)
+    return s / a, (1 - c) / a, (a * c - s) / (a * a), (a * s - (1 - c)) / (a * a)
 
 
 def ctrv_displacement(yaw: float, v: float, yaw_rate: float, dt: float) -> tuple[float, float]:
-    """Displacement ``(dx, dy)`` in the map frame of one CTRV step from heading ``yaw``."""
-    turn = yaw_rate * dt
-    if abs(turn) < _SMALL_TURN:
-        c, s = math.cos(yaw + 0.5 * turn), math.sin(yaw + 0.5 * turn)
-        return v * dt * c, v * dt * s
-    return (
-        v / yaw_rate * (math.sin(yaw + turn) - math.sin(yaw)),
-        v / yaw_rate * (math.cos(yaw) - math.cos(yaw + turn)),
-    )
+    """Displacement ``(dx, dy)`` in the map frame of one CTRV step from heading ``yaw``:
+    the arc ``v/w (sin(yaw + w dt) - sin yaw, cos yaw - cos(yaw + w dt))``, written as
+    ``v dt (cos yaw f1 - sin yaw f2, sin yaw f1 + cos yaw f2)`` so it stays exact as w -> 0."""
+    f1, f2, _, _ = _arc_functions(yaw_rate * dt)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return v * dt * (c * f1 - s * f2), v * dt * (s * f1 + c * f2)
 
 
 def ctrv_predict(state: ArrayLike, dt: float) -> FloatArray:
@@ -41,28 +51,17 @@ def ctrv_predict(state: ArrayLike, dt: float) -> FloatArray:
 
 
 def ctrv_jacobian(state: ArrayLike, dt: float) -> FloatArray:
-    """5x5 Jacobian of :func:`ctrv_predict` with respect to the state.
-
-    Uses the straight-line limit (exact to second order in ``yaw_rate * dt``)
-    when the turn over the step is tiny, so it stays finite as yaw_rate -> 0.
-    """
+    """5x5 Jacobian of :func:`ctrv_predict` with respect to the state (finite and exact
+    through yaw_rate -> 0, the straight-line limit)."""
     _, _, yaw, v, w = np.asarray(state, dtype=float)
+    f1, f2, d1, d2 = _arc_functions(w * dt)
+    c, s = math.cos(yaw), math.sin(yaw)
+    ux, uy = c * f1 - s * f2, s * f1 + c * f2  # displacement per metre of travel
     F = np.eye(5)
-    turn = w * dt
-    if abs(turn) < _SMALL_TURN:
-        c, s = math.cos(yaw), math.sin(yaw)
-        F[0, 2], F[1, 2] = -v * dt * s, v * dt * c
-        F[0, 3], F[1, 3] = dt * c, dt * s
-        F[0, 4], F[1, 4] = -0.5 * v * dt * dt * s, 0.5 * v * dt * dt * c
-    else:
-        s0, c0 = math.sin(yaw), math.cos(yaw)
-        s1, c1 = math.sin(yaw + turn), math.cos(yaw + turn)
-        F[0, 2] = v / w * (c1 - c0)
-        F[1, 2] = v / w * (s1 - s0)
-        F[0, 3] = (s1 - s0) / w
-        F[1, 3] = (c0 - c1) / w
-        F[0, 4] = v * dt * c1 / w - v * (s1 - s0) / (w * w)
-        F[1, 4] = v * dt * s1 / w - v * (c0 - c1) / (w * w)
+    F[0, 2], F[1, 2] = -v * dt * uy, v * dt * ux
+    F[0, 3], F[1, 3] = dt * ux, dt * uy
+    F[0, 4] = v * dt * dt * (c * d1 - s * d2)
+    F[1, 4] = v * dt * dt * (s * d1 + c * d2)
     F[2, 4] = dt
     return F
 

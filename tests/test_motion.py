@@ -56,3 +56,12 @@ def test_integrate_odometry_full_circle():
     assert np.allclose(poses[-1, :2], [1.0, 2.0], atol=1e-6)
     radius = np.linalg.norm(poses[:, :2] - [1.0, 4.0], axis=1)
     assert np.allclose(radius, 2.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("w", [5e-6, 1e-4, 3e-3, 2e-2])
+def test_ctrv_jacobian_accurate_for_tiny_turns(w):
+    # found by hypothesis: a turn of 2.5e-6 rad over the step lost the yaw-rate column
+    state = np.array([0.5, 1.5, 1.0, 1.0, w])
+    J = ctrv_jacobian(state, 0.5)
+    Jn = _numerical_jacobian(lambda s: ctrv_predict(s, 0.5), state)
+    assert np.allclose(J, Jn, atol=1e-7)
