@@ -123,13 +123,14 @@ def _upright_turns(family: TagFamily) -> int:
     with the AprilTag images on this, so ask pupil-apriltags once; without it assume
     the half turn measured with OpenCV 5.0."""
     try:
-        from pupil_apriltags import Detector
+        from semslam.perception.apriltag_detector import shared_detector
+
+        detector = shared_detector(str(family))
     except ImportError:  # pragma: no cover - pupil-apriltags is a dependency
         return 2
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, _ARUCO_DICTS[family]))
     side = (_TAG_BITS[family] + 2) * 20
     code = cv2.aruco.generateImageMarker(dictionary, 0, side)
-    detector = Detector(families=str(family))
     for turns in range(4):
         canvas = np.full((3 * side, 3 * side), 255, np.uint8)
         canvas[side : 2 * side, side : 2 * side] = np.rot90(code, turns)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import SimulationError
+from semslam.perception.apriltag_detector import shared_detector
 from semslam.rig import default_front_camera
 from semslam.simulation.render_front import FrontRenderer, render_front
 from semslam.simulation.world import make_world
@@ -34,7 +35,7 @@ def renderer(small_world: World) -> FrontRenderer:
 
 @pytest.fixture(scope="module")
 def detector():
-    return pupil_apriltags.Detector(families="tag36h11")
+    return shared_detector("tag36h11")  # never a second Detector: see apriltag_detector.py
 
 
 def pose_facing(tag: Tag, distance: float) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""Perception: pure functions of images and the rig (detectors behind adapters)."""
