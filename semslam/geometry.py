@@ -78,3 +78,27 @@ def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
 def quaternion_to_yaw(qx: float, qy: float, qz: float, qw: float) -> float:
     """Yaw (rotation about +z, radians) of a quaternion; roll and pitch are ignored."""
     return float(wrap_angle(math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))))
+
+
+def clip_segment(a: ArrayLike, b: ArrayLike, lo: float, hi: float):
+    """Liang-Barsky clip of the segment a-b (2,) to the square [lo, hi]^2.
+
+    Returns the clipped end points ``(a', b')`` or None when the segment misses it.
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    d = b - a
+    t0, t1 = 0.0, 1.0
+    for k in range(2):
+        for p, q in ((-d[k], a[k] - lo), (d[k], hi - a[k])):
+            if abs(p) < 1e-12:
+                if q < 0:
+                    return None
+                continue
+            t = q / p
+            if p < 0:
+                t0 = max(t0, t)
+            else:
+                t1 = min(t1, t)
+            if t0 > t1:
+                return None
+    return a + d * t0, a + d * t1

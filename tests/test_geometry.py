@@ -65,3 +65,13 @@ def test_transform_matches_compose():
 @given(angle)
 def test_quaternion_round_trip(a):
     assert math.isclose(wrap_angle(quaternion_to_yaw(*yaw_to_quaternion(a)) - a), 0.0, abs_tol=1e-9)
+
+
+def test_clip_segment_to_square():
+    from semslam.geometry import clip_segment
+
+    a, b = clip_segment([-2.0, 0.0], [2.0, 0.0], -1.0, 1.0)
+    assert np.allclose(a, [-1.0, 0.0]) and np.allclose(b, [1.0, 0.0])
+    assert clip_segment([2.0, 2.0], [3.0, 3.0], -1.0, 1.0) is None
+    inside = clip_segment([0.1, 0.2], [0.3, -0.4], -1.0, 1.0)
+    assert np.allclose(inside[0], [0.1, 0.2]) and np.allclose(inside[1], [0.3, -0.4])

@@ -22,7 +22,9 @@ class Graph:
         params.setRelinearizeThreshold(relinearize_threshold)
         params.relinearizeSkip = relinearize_skip
         params.enablePartialRelinearizationCheck = True
-        params.setFactorization("QR")  # Cholesky fails on the ill-conditioned steps null losses give
+        params.setFactorization(
+            "QR"
+        )  # Cholesky fails on the ill-conditioned steps null losses give
         self.isam = gtsam.ISAM2(params)
         self.factors = gtsam.NonlinearFactorGraph()
         self._batch: gtsam.Values | None = None  # set by optimize_batch

@@ -145,10 +145,14 @@ class SlotLandmarks:
     def overlapping(self, corners: FloatArray, threshold: float) -> bool:
         """Does a slot at ``corners`` (4, 2) overlap an active landmark by more than
         ``threshold`` of the smaller area?"""
-        return any(overlap_ratio(corners, s.corners) > threshold
-                   for s in self.near(corners.mean(axis=0), 7.0))
+        return any(
+            overlap_ratio(corners, s.corners) > threshold
+            for s in self.near(corners.mean(axis=0), 7.0)
+        )
 
-    def duplicates(self, distance: float, around: FloatArray, radius: float) -> list[tuple[int, int]]:
+    def duplicates(
+        self, distance: float, around: FloatArray, radius: float
+    ) -> list[tuple[int, int]]:
         """Pairs (keep, drop) of active landmarks within ``radius`` of ``around`` closer than
         ``distance`` to each other whose labels do not contradict each other (equal, or one
         of them without a confident label)."""

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from semslam.geometry import FloatArray
+from semslam.geometry import FloatArray, clip_segment
 from semslam.rig import TopviewSpec
 from semslam.simulation.world_types import World
 from semslam.types import JunctionShape, SlotKind
@@ -642,7 +642,7 @@ class TopviewRenderer:
             if visible(fp):
                 solids.append((fp, self._pillar_bands, (150.0, 150.0, 150.0)))
         for w in self.world.walls:
-            seg = self._clip_segment(self._apply(P, np.array([w.a, w.b], float)), -30.0, n + 30.0)
+            seg = clip_segment(*self._apply(P, np.array([w.a, w.b], float)), -30.0, n + 30.0)
             if seg is not None:
                 a, b = seg
                 d = (b - a) / max(float(np.linalg.norm(b - a)), 1e-9)
@@ -712,29 +712,6 @@ class TopviewRenderer:
     @staticmethod
     def _stretch(H: float, h: float) -> float:
         return _FMAX if h >= H * (1.0 - 1.0 / _FMAX) else H / (H - h)
-
-    @staticmethod
-    def _clip_segment(seg: np.ndarray, lo: float, hi: float):
-        """Liang-Barsky clip of a segment (2, 2) to the square [lo, hi]^2, or None."""
-        a, b = seg
-        d = b - a
-        t0, t1 = 0.0, 1.0
-        for k in range(2):
-            for p, q in ((-d[k], a[k] - lo), (d[k], hi - a[k])):
-                if abs(p) < 1e-12:
-                    if q < 0:
-                        return None
-                    continue
-                t = q / p
-                if p < 0:
-                    t0 = max(t0, t)
-                else:
-                    t1 = min(t1, t)
-        if t0 >= t1:
-            return None
-        return a + d * t0, a + d * t1
-
-    # ------------------------------------------------------------------ cameras
 
     def _camera_pipeline(
         self, S: np.ndarray, mTv: np.ndarray, rng: np.random.Generator

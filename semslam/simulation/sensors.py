@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from semslam.config import ObservationNoiseConfig
-from semslam.geometry import FloatArray, inverse_transform_points, wrap_angle
+from semslam.geometry import FloatArray, clip_segment, inverse_transform_points, wrap_angle
 from semslam.rig import Rig
 from semslam.simulation.world_types import World
 from semslam.types import (
@@ -32,27 +32,8 @@ _CHUNK = 4.0  # long markings are indexed in pieces of this length, m
 
 
 def clip_segment_to_square(a: FloatArray, b: FloatArray, half: float):
-    """Liang-Barsky clip of segment a-b (2,) to the square |x|, |y| <= half; None if outside."""
-    d = b - a
-    t0, t1 = 0.0, 1.0
-    for p, q in (
-        (-d[0], a[0] + half),
-        (d[0], half - a[0]),
-        (-d[1], a[1] + half),
-        (d[1], half - a[1]),
-    ):
-        if abs(p) < 1e-12:
-            if q < 0:
-                return None
-            continue
-        r = q / p
-        if p < 0:
-            t0 = max(t0, r)
-        else:
-            t1 = min(t1, r)
-        if t0 > t1:
-            return None
-    return a + d * t0, a + d * t1
+    """Clip segment a-b (2,) to the square |x|, |y| <= half; None if outside."""
+    return clip_segment(a, b, -half, half)
 
 
 def tag_observation_covariance(
