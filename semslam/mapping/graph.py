@@ -22,9 +22,8 @@ class Graph:
         params.setRelinearizeThreshold(relinearize_threshold)
         params.relinearizeSkip = relinearize_skip
         params.enablePartialRelinearizationCheck = True
-        params.setFactorization(
-            "QR"
-        )  # Cholesky fails on the ill-conditioned steps null losses give
+        # QR: Cholesky fails on the ill-conditioned steps that null-hypothesis losses give
+        params.setFactorization("QR")
         self.isam = gtsam.ISAM2(params)
         self.factors = gtsam.NonlinearFactorGraph()
         self._batch: gtsam.Values | None = None  # set by optimize_batch
