@@ -158,7 +158,14 @@ def test_map_writes_a_valid_map_and_its_by_products(small_drive, tmp_path):
     out = tmp_path / "garage.json"
     result = _run("map", small_drive, "-o", out, "--observations", "noisy", "--no-progress")
     assert result.exit_code == 0, result.output
-    for suffix in (".json", ".trajectory.tum", ".audit.jsonl", ".config.json", ".g2o"):
+    for suffix in (
+        ".json",
+        ".trajectory.tum",
+        ".audit.jsonl",
+        ".audit.json",
+        ".config.json",
+        ".g2o",
+    ):
         assert (tmp_path / f"garage{suffix}").stat().st_size > 0
     metrics = json.loads(
         _run("evaluate", "map", out, "--truth", small_drive / "world.json", "--json").stdout
@@ -168,6 +175,12 @@ def test_map_writes_a_valid_map_and_its_by_products(small_drive, tmp_path):
         json.loads(line) for line in (tmp_path / "garage.audit.jsonl").read_text().splitlines()
     ]
     assert {a["status"] for a in audit} <= {"accepted", "null", "reassigned", "pooled"}
+    by_slot = json.loads((tmp_path / "garage.audit.json").read_text())["slots"]
+    assert len(by_slot) == metrics["slots_mapped"]
+    accepted = sum(len(s["accepted"]) for s in by_slot)
+    assert accepted == sum(
+        a["status"] in ("accepted", "reassigned") and a["slot"] is not None for a in audit
+    )
     # the exported graph reads back and solves
     solved = _run("optimize", tmp_path / "garage.g2o", "-o", tmp_path / "solved.g2o", "--json")
     assert solved.exit_code == 0, solved.output

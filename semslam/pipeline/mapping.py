@@ -2,7 +2,8 @@
 
 Writes, next to ``MAP.json``: ``MAP.trajectory.tum`` (keyframes, TUM), ``MAP.g2o``
 (the graph, for the usual tools),
-``MAP.audit.jsonl`` (what became of every slot observation),
+``MAP.audit.jsonl`` (what became of every slot observation), ``MAP.audit.json`` (per slot:
+the observations it accepted, those that went to another slot or to the null hypothesis),
 ``MAP.config.json`` (the configuration used).
 """
 
@@ -106,6 +107,7 @@ def build_map(
     write_tum(_sibling(map_path, ".trajectory.tum"), result.keyframe_times, result.keyframe_poses)
     write_g2o(_sibling(map_path, ".g2o"), to_pose_graph(replace(result, map=semantic_map)))
     atomic_write_text(_sibling(map_path, ".audit.jsonl"), _audit_jsonl(result))
+    atomic_write_text(_sibling(map_path, ".audit.json"), _audit_by_slot(result))
     atomic_write_text(_sibling(map_path, ".config.json"), config_to_json(config))
     return MapSummary(
         map_path,
@@ -141,3 +143,23 @@ def _audit_jsonl(result) -> str:
             )
         )
     return "\n".join(lines) + ("\n" if lines else "")
+
+
+def _audit_by_slot(result) -> str:
+    """Per mapped slot: indices (lines of the .audit.jsonl) of the observations it accepted,
+    of those first proposed for it that ended on another slot, and of those that ended on
+    the null hypothesis while it was their nearest candidate."""
+    slot_id = result.slot_of_landmark
+    slots: dict[int, dict[str, list[int]]] = {
+        s.id: {"accepted": [], "went_to_other_slot": [], "null": []} for s in result.map.slots
+    }
+    for i, s in enumerate(result.sightings):
+        final = slot_id.get(s.landmark) if s.landmark is not None else None
+        first = slot_id.get(s.first_choice) if s.first_choice is not None else None
+        if s.status.value in ("accepted", "reassigned") and final in slots:
+            slots[final]["accepted"].append(i)
+        if s.status.value == "reassigned" and first in slots and first != final:
+            slots[first]["went_to_other_slot"].append(i)
+        if s.status.value == "null" and first in slots:
+            slots[first]["null"].append(i)
+    return json.dumps({"slots": [{"id": k, **v} for k, v in slots.items()]}) + "\n"
