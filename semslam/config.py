@@ -120,6 +120,10 @@ class MappingConfig(_Section):
         1.0, gt=0, description="iSAM2: relinearise beyond (the final batch relinearises all)"
     )
     relinearize_skip: int = Field(5, ge=1, description="iSAM2: updates between relinearisations")
+    batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
+    batch_relative_tolerance: float = Field(
+        1e-5, gt=0, description="final LM stops when the error improves by less than this"
+    )
     speed_sigma: float = Field(0.03, gt=0, description="odometry model: speed noise, m/s")
     speed_scale_sigma: float = Field(
         0.002, ge=0, description="odometry model: scale error left after calibration"

@@ -70,11 +70,11 @@ class Graph:
             self.update()
         return self.isam.calculateEstimate()
 
-    def optimize_batch(self, max_iterations: int = 100) -> int:
+    def optimize_batch(self, max_iterations: int = 20, relative_tolerance: float = 1e-5) -> int:
         """Levenberg-Marquardt over all factors from iSAM2's estimate; returns iterations."""
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
-        params.setRelativeErrorTol(1e-7)
+        params.setRelativeErrorTol(relative_tolerance)
         optimizer = gtsam.LevenbergMarquardtOptimizer(self.factors, self.estimate, params)
         self._batch = optimizer.optimize()
         return int(optimizer.iterations())

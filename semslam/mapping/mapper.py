@@ -409,7 +409,9 @@ class Mapper:
         marginals = None
         if self.use_graph:
             self.graph.update()
-            iterations = self.graph.optimize_batch()
+            iterations = self.graph.optimize_batch(
+                self.cfg.batch_max_iterations, self.cfg.batch_relative_tolerance
+            )
             self._refresh_estimates(everything=True)
             marginals = self.graph.marginals()
             self._decide_components()
