@@ -56,6 +56,15 @@ _XY_INFO = ("I11", "I12", "I22")
 # --------------------------------------------------------------------------- data
 
 
+def _same_edge(x, y) -> bool:
+    """Equal vertex pair, measurement and information (arrays compared exactly)."""
+    return (
+        (x.a, x.b) == (y.a, y.b)
+        and np.array_equal(x.measurement, y.measurement)
+        and np.array_equal(x.information, y.information)
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class Edge2D:
     """A relative-pose measurement ``aTb`` between poses ``a`` and ``b``.
@@ -73,12 +82,7 @@ class Edge2D:
     information: FloatArray
 
     def __eq__(self, other: object) -> bool:
-        return (
-            isinstance(other, Edge2D)
-            and (self.a, self.b) == (other.a, other.b)
-            and np.array_equal(self.measurement, other.measurement)
-            and np.array_equal(self.information, other.information)
-        )
+        return isinstance(other, Edge2D) and _same_edge(self, other)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -94,12 +98,7 @@ class PointEdge2D:
     information: FloatArray
 
     def __eq__(self, other: object) -> bool:
-        return (
-            isinstance(other, PointEdge2D)
-            and (self.a, self.b) == (other.a, other.b)
-            and np.array_equal(self.measurement, other.measurement)
-            and np.array_equal(self.information, other.information)
-        )
+        return isinstance(other, PointEdge2D) and _same_edge(self, other)
 
     __hash__ = None  # type: ignore[assignment]
 

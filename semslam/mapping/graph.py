@@ -79,9 +79,6 @@ class Graph:
         self._batch = optimizer.optimize()
         return int(optimizer.iterations())
 
-    def error(self) -> float:
-        return float(self.factors.error(self.estimate))
-
     # -- reading one variable
     def _pending(self, key: int) -> bool:
         return self._new_values.exists(key)

@@ -84,10 +84,6 @@ def _row_geometry(kind: SlotKind, rng: np.random.Generator, entrance_y: float, n
     return _RowGeometry(kind, entrance_y, normal, rng.uniform(5.6, 6.4), math.pi / 2, 2.5)
 
 
-def _depth_of(kind: SlotKind) -> float:
-    return {SlotKind.PERPENDICULAR: 5.0, SlotKind.SLANTED: 5.0, SlotKind.PARALLEL: 2.5}[kind]
-
-
 class _Builder:
     """Accumulates the world's parts row by row."""
 
