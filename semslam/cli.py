@@ -122,6 +122,39 @@ def map_command(
     print_map_summary(summary)
 
 
+@app.command()
+def localize(
+    drive: Annotated[Path, typer.Argument(help="Drive folder to localize.")],
+    map_path: Annotated[Path, typer.Option("--map", help="Map from `semslam map` (JSON).")],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Trajectory to write (TUM; a .csv beside it).")
+    ],
+    init: Annotated[
+        str | None,
+        typer.Option(help="Start pose x,y,yaw (m, m, rad), or auto; default: the drive's."),
+    ] = None,
+    observations: Annotated[
+        ObservationSource, typer.Option(help="Which observations to localize with.")
+    ] = ObservationSource.noisy,
+    update: Annotated[
+        str | None, typer.Option(help="ekf (analytic Jacobians) or sigma (Houben's sigma points).")
+    ] = None,
+    config: ConfigOption = None,
+    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+) -> None:
+    """Track a drive against a map, frame by frame: pose, covariance and status."""
+    from semslam.config import load_config, with_overrides
+    from semslam.pipeline.localize import localize_drive
+    from semslam.reporting import print_localize_summary
+
+    try:
+        cfg = with_overrides(load_config(config), localization={"update": update})
+        summary = localize_drive(drive, map_path, output, observations.value, init, cfg, progress)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_localize_summary(summary)
+
+
 class RobustMode(StrEnum):
     maxmix = "maxmix"
     none = "none"
@@ -171,6 +204,56 @@ def evaluate_map(
     except (SemslamError, OSError) as e:
         _fail(e)
     print_metrics("map evaluation", metrics, json_output)
+
+
+_TRAJECTORY_TABLE = (
+    "frames",
+    "frames_evaluated",
+    "frames_lost",
+    "frames_unmatched",
+    "alignment",
+    "ate_rmse_m",
+    "ate_median_m",
+    "ate_p95_m",
+    "ate_max_m",
+    "yaw_rmse_deg",
+    "rpe_trans_rmse_m",
+    "rpe_yaw_rmse_deg",
+    "split_reference",
+    "parallel_mean_m",
+    "orthogonal_mean_m",
+    "nees_mean",
+    "nees_within_95",
+)
+
+
+@evaluate_app.command("trajectory")
+def evaluate_trajectory(
+    trajectory: Annotated[
+        Path, typer.Argument(metavar="TRAJ.tum", help="The trajectory to score (TUM).")
+    ],
+    truth: Annotated[Path, typer.Option(help="The true trajectory (TUM, e.g. groundtruth.tum).")],
+    map_path: Annotated[
+        Path | None,
+        typer.Option("--map", metavar="MAP.json", help="Split errors along its painted lines."),
+    ] = None,
+    align: Annotated[bool, typer.Option(help="Fit the best SE(2) transform first.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """ATE, yaw and 1 s relative errors, parallel / orthogonal split, NEES (with TRAJ.csv)."""
+    from semslam.pipeline.evaluate import evaluate_trajectory_files
+    from semslam.reporting import print_metrics
+
+    try:
+        metrics = evaluate_trajectory_files(trajectory, truth, map_path, align=align)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    if not json_output:  # the main figures; --json has them all
+        metrics = {k: metrics[k] for k in _TRAJECTORY_TABLE if metrics.get(k) is not None}
+        if "alignment" in metrics:
+            x, y, yaw = metrics["alignment"]
+            metrics["alignment"] = f"{x:.3f} m, {y:.3f} m, {yaw:.3f} deg"
+    print_metrics("trajectory evaluation", metrics, json_output)
 
 
 @app.command("dump-config")

@@ -171,6 +171,61 @@ class MappingConfig(_Section):
     )
 
 
+class LocalizationConfig(_Section):
+    """The online filter against a map (``semslam localize``)."""
+
+    update: str = Field(
+        "ekf", pattern="^(ekf|sigma)$",
+        description="frame update: ekf (analytic Jacobians) or sigma (Houben's 11 sigma points)",
+    )
+    sigma_alpha: float = Field(0.2, gt=0, lt=1, description="sigma-point weight w0 (Houben)")
+    speed_sigma: float = Field(0.05, gt=0, description="wheel speed as a measurement of v, m/s")
+    yaw_rate_sigma: float = Field(0.005, gt=0, description="gyro as a measurement of yaw rate")
+    acceleration_sigma: float = Field(2.0, gt=0, description="process noise on v, m/s^2")
+    yaw_acceleration_sigma: float = Field(1.0, gt=0, description="process noise, rad/s^2")
+    position_walk: float = Field(0.02, ge=0, description="unmodelled slip, m per sqrt(s)")
+    yaw_walk: float = Field(0.002, ge=0, description="unmodelled heading drift, rad per sqrt(s)")
+    init_position_sigma: float = Field(0.3, gt=0, description="--init x,y,yaw: 1-sigma, m")
+    init_yaw_sigma_deg: float = Field(3.0, gt=0, description="--init x,y,yaw: 1-sigma, deg")
+    slot_corner_sigma_min: float = Field(0.03, gt=0, description="floor on corner sigma, m")
+    map_covariance_scale: float = Field(
+        10.0, gt=0, description="map landmark covariance multiplier: a map error is the same "
+        "at every frame that sees the landmark, so it must not average out like sensor noise",
+    )
+    id_confidence_high: float = Field(
+        0.8, ge=0, le=1, description="label confidence from which a slot is looked up by ID"
+    )
+    search_radius: float = Field(4.0, gt=0, description="local map: candidates this near, m")
+    tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
+    slot_gate: float = Field(0.999, gt=0, lt=1, description="per-slot chi-square gate probability")
+    tag_gate: float = Field(0.999, gt=0, lt=1, description="per-tag chi-square gate probability")
+    marking_gate: float = Field(0.99, gt=0, lt=1, description="per-marking gate probability")
+    second_nearest_ratio: float = Field(
+        3.0, gt=1, description="the runner-up must be this much farther (chi-square) to accept"
+    )
+    frame_gate: float = Field(
+        0.9999, gt=0, lt=1, description="whole-frame chi-square gate probability (Houben)"
+    )
+    marking_endpoint_sigma: float = Field(0.05, gt=0, description="marking end point, m")
+    marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
+    marking_max_angle_deg: float = Field(10.0, gt=0, description="marking association angle")
+    use_slots: bool = Field(True, description="update with slot corners")
+    use_tags: bool = Field(True, description="update with tags")
+    use_markings: bool = Field(True, description="update with line markings")
+    lost_position_sigma: float = Field(1.0, gt=0, description="m: beyond this the filter is lost")
+    lost_rejections: int = Field(
+        5, ge=1, description="frames in a row whose observations were all rejected: lost"
+    )
+    relocalize_label_confidence: float = Field(0.8, ge=0, le=1)
+    relocalize_min_slots: int = Field(2, ge=1, description="slots that must agree to relocalize")
+    relocalize_window: float = Field(
+        2.0, ge=0, description="s of recent frames, placed by odometry, used to relocalize"
+    )
+    check_every: int = Field(
+        5, ge=1, description="frames between consistency checks against global relocalization"
+    )
+
+
 class SemslamConfig(BaseSettings):
     """The root configuration."""
 
@@ -180,6 +235,7 @@ class SemslamConfig(BaseSettings):
 
     simulation: SimulationConfig = SimulationConfig()
     mapping: MappingConfig = MappingConfig()
+    localization: LocalizationConfig = LocalizationConfig()
 
 
 def load_config(path: Path | None = None) -> SemslamConfig:

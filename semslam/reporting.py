@@ -78,3 +78,26 @@ def print_map_summary(summary: MapSummary, console: Console | None = None) -> No
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+def print_localize_summary(summary, console: Console | None = None) -> None:
+    """What ``semslam localize`` did: frames by status, time to the first pose, speed."""
+    console = console or Console()
+    table = Table(title=f"semslam localize -> {summary.trajectory}", show_header=False)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    first = summary.first_pose_after_s
+    rows = [
+        ("frames / with a pose", f"{summary.frames} / {summary.frames_with_pose}"),
+        ("first pose after", "-" if first is None else f"{first:.1f} s"),
+        *(
+            (f"frames {status}", str(n))
+            for status, n in sorted(summary.status_counts.items())
+        ),
+        ("association + update, median", f"{summary.update_ms_median:.2f} ms / frame"),
+        ("driving / localizing time", f"{summary.driving_s:.1f} s / {summary.elapsed_s:.1f} s"),
+        ("track (pose, covariance, status)", str(summary.track)),
+    ]
+    for k, v in rows:
+        table.add_row(k, v)
+    console.print(table)

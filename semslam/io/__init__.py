@@ -43,6 +43,7 @@ from semslam.io.observations import (
 )
 from semslam.io.odometry import Odometry, read_odometry, write_odometry
 from semslam.io.rig_json import load_rig, rig_from_dict, rig_to_dict, save_rig
+from semslam.io.track_csv import TRACK_STATUSES, Track, read_track_csv, write_track_csv
 from semslam.io.tum import read_tum, write_tum
 
 __all__ = [
@@ -88,4 +89,8 @@ __all__ = [
     "write_observations",
     "write_odometry",
     "write_tum",
+    "TRACK_STATUSES",
+    "Track",
+    "read_track_csv",
+    "write_track_csv",
 ]

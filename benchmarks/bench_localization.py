@@ -1,0 +1,180 @@
+"""Localization benchmark (issue 4): accuracy, consistency, auto-init, kidnap, speed.
+
+Simulates a `garage` world twice (drive 0 to map, drive 1 to localize), maps drive 0 with
+`semslam map`, then localizes drive 1 with `semslam localize` in both update modes and with
+markings only, scores each with `semslam evaluate trajectory`, and runs the relocalization
+trials through the library (100 random starts with `--init auto`; kidnaps of 10 m).
+
+    python benchmarks/bench_localization.py [--seeds 1 2 3] [--starts 100] [--kidnaps 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+KEYS = ["ate_rmse_m", "ate_p95_m", "yaw_rmse_deg", "parallel_mean_m", "orthogonal_mean_m",
+        "nees_mean", "frames", "frames_lost"]
+
+
+def run(args: list[str], env: dict[str, str] | None = None) -> str:
+    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
+                          text=True, env={**os.environ, **(env or {})}, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"semslam {' '.join(args)} failed: {proc.stderr.strip()}")
+    return proc.stdout
+
+
+def localize_and_score(drive: Path, map_path: Path, out: Path, env: dict[str, str]) -> dict:
+    started = time.perf_counter()
+    run(["localize", str(drive), "--map", str(map_path), "-o", str(out), "--observations",
+         "noisy", "--no-progress"], env)
+    elapsed = time.perf_counter() - started
+    metrics = json.loads(run(["evaluate", "trajectory", str(out), "--truth",
+                              str(drive / "groundtruth.tum"), "--map", str(map_path), "--json"]))
+    return {**{k: metrics.get(k) for k in KEYS}, "wall_s": round(elapsed, 1)}
+
+
+def _truth_at(truth_t, truth_poses, t):
+    i = int(np.clip(np.searchsorted(truth_t, t), 1, len(truth_t) - 1))
+    a = (t - truth_t[i - 1]) / (truth_t[i] - truth_t[i - 1])
+    p = truth_poses[i - 1] + a * (truth_poses[i] - truth_poses[i - 1])
+    p[2] = truth_poses[i - 1][2] + a * math.remainder(truth_poses[i][2] - truth_poses[i - 1][2],
+                                                      2 * math.pi)
+    return p
+
+
+def _error(pose, truth):
+    return float(np.hypot(*(pose[:2] - truth[:2]))), abs(math.degrees(
+        math.remainder(pose[2] - truth[2], 2 * math.pi)))
+
+
+def relocalization_trials(drive_dir: Path, map_path: Path, starts: int, kidnaps: int,
+                          seed: int) -> dict:
+    """Random starts with no pose (time to the first correct pose) and 10 m kidnaps
+    (time until the error is below 0.5 m again)."""
+    from semslam.config import load_config
+    from semslam.io import Drive, load_map
+    from semslam.localization.localizer import Localizer
+
+    cfg = load_config(None).localization
+    drive = Drive.open(drive_dir)
+    odo = drive.odometry()
+    frames = drive.observations("noisy")
+    truth_t, truth_poses = drive.groundtruth()
+    semantic_map = load_map(map_path)
+    rng = np.random.default_rng(seed)
+    found_s, wrong = [], 0
+    for start in rng.integers(0, len(frames) - 100, starts):
+        keep = odo.t >= frames[start].t - 1e-9
+        loc = Localizer(semantic_map, cfg, odo.t[keep], odo.speed[keep], odo.yaw_rate[keep])
+        took = None
+        for frame in frames[start : start + 100]:
+            est = loc.step(frame)
+            if np.all(np.isfinite(est.pose)):
+                e_pos, e_yaw = _error(est.pose, _truth_at(truth_t, truth_poses, frame.t))
+                took = frame.t - frames[start].t
+                wrong += e_pos > 0.5 or e_yaw > 5
+                break
+        found_s.append(took)
+    recover_s = []
+    for k in rng.integers(200, len(frames) - 100, kidnaps):
+        loc = Localizer(semantic_map, cfg, odo.t, odo.speed, odo.yaw_rate, drive.start_pose)
+        for frame in frames[: k]:
+            loc.step(frame)
+        direction = rng.uniform(0, 2 * math.pi)
+        loc.filter.x[:2] += 10.0 * np.array([math.cos(direction), math.sin(direction)])
+        took = None
+        for frame in frames[k : k + 100]:
+            est = loc.step(frame)
+            e_pos, _ = _error(est.pose, _truth_at(truth_t, truth_poses, frame.t))
+            if e_pos < 0.5 and est.status in ("tracking", "relocalized"):
+                took = frame.t - frames[k].t
+                break
+        recover_s.append(took)
+    found = [s for s in found_s if s is not None]
+    recovered = [s for s in recover_s if s is not None]
+    return {
+        "auto_init_starts": starts,
+        "auto_init_within_2s": sum(s <= 2.0 for s in found) / max(starts, 1),
+        "auto_init_median_s": float(np.median(found)) if found else None,
+        "auto_init_wrong": wrong,
+        "kidnaps": kidnaps,
+        "kidnap_recovered_within_3s": sum(s <= 3.0 for s in recovered) / max(kidnaps, 1),
+        "kidnap_recovery_median_s": float(np.median(recovered)) if recovered else None,
+        "kidnap_recovery_max_s": float(np.max(recovered)) if recovered else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[1])
+    parser.add_argument("--starts", type=int, default=100)
+    parser.add_argument("--kidnaps", type=int, default=20)
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        for seed in args.seeds:
+            d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
+            run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images"])
+            run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive", "1",
+                 "--no-images"])
+            map_path = root / f"s{seed}.map.json"
+            run(["map", str(d0), "-o", str(map_path), "--observations", "noisy", "--no-progress"])
+            variants = {
+                "ekf (default)": {},
+                "sigma points (Houben)": {"SEMSLAM_LOCALIZATION__UPDATE": "sigma"},
+                "markings only": {"SEMSLAM_LOCALIZATION__USE_SLOTS": "false",
+                                  "SEMSLAM_LOCALIZATION__USE_TAGS": "false"},
+            }
+            for name, env in variants.items():
+                out = root / f"s{seed}-{len(rows)}.tum"
+                row = {"seed": seed, "variant": name,
+                       **localize_and_score(d1, map_path, out, env)}
+                track = out.with_suffix(".csv")
+                row["update_ms_median"] = _median_update_ms(d1, map_path, env)
+                del track
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+            if args.starts or args.kidnaps:
+                trials = relocalization_trials(d1, map_path, args.starts, args.kidnaps, seed)
+                print(json.dumps({"seed": seed, **trials}), flush=True)
+                rows.append({"seed": seed, "variant": "relocalization", **trials})
+    print(json.dumps(rows, indent=1))
+
+
+def _median_update_ms(drive_dir: Path, map_path: Path, env: dict[str, str]) -> float:
+    """Median per-frame association + update time (ms), measured in this process."""
+    from semslam.config import load_config
+    from semslam.io import Drive, load_map
+    from semslam.localization.localizer import Localizer
+
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        cfg = load_config(None).localization
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    drive = Drive.open(drive_dir)
+    odo = drive.odometry()
+    loc = Localizer(load_map(map_path), cfg, odo.t, odo.speed, odo.yaw_rate, drive.start_pose)
+    times = [loc.step(f).update_ms for f in drive.observations("noisy")]
+    return round(float(np.median(times)), 3)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Online localization against a semantic map (no gtsam here)."""

@@ -1,0 +1,225 @@
+"""Which map landmark each observation of a frame belongs to (the localizer's local map).
+
+The map is indexed once: a KD-tree over slot centres, a table from painted label to slots,
+a table from (family, ID) to tags, and a KD-tree over points sampled every metre along the
+line markings. For a predicted pose (with its 3x3 covariance) each observation is tried
+against the landmarks near where it would lie in the map; its squared Mahalanobis distance
+``d2 = r^T (H P H^T + R)^-1 r`` decides:
+
+- tags: by ID (trusted), within the range limit and the tag gate;
+- slots: by label when the label is confident and the slot of that label passes the gate;
+  otherwise (no label, low confidence, or a confident label that does not fit: a misread)
+  the nearest slot by ``d2``, accepted only inside the gate and when the second nearest is
+  clearly farther (``d2_second >= ratio * max(d2_best, dof)``);
+- markings: candidates within the angle limit, the nearest by ``d2`` of Houben's marking
+  measurement (end points across the line, clamped to the marking's ends), same gate and
+  ratio test.
+
+Each observation is used once; a slot or tag takes at most one observation per frame.
+Everything is in the map frame (metres, radians) except observations (vehicle frame).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import chi2
+
+from semslam.config import LocalizationConfig
+from semslam.geometry import FloatArray, rotation, transform_points
+from semslam.localization.measurements import (
+    MarkingMeasurement,
+    PointMeasurement,
+    TagMeasurement,
+)
+from semslam.types import FrameObservations, SemanticMap
+
+_MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-tree
+
+
+@dataclass
+class Associations:
+    """A frame's associated measurements and what was rejected, per sensor."""
+
+    measurements: list = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)  # "slot" | "tag" | "marking", per measurement
+    landmarks: list[int] = field(default_factory=list)  # index into the map's list of that kind
+    rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
+    label_conflicts: int = 0  # confident labels whose slot did not fit (misreads, or lost)
+
+    @property
+    def count(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def rejected_total(self) -> int:
+        return sum(self.rejected.values())
+
+
+class LocalMap:
+    """The map, indexed for association around a predicted pose."""
+
+    def __init__(self, semantic_map: SemanticMap, cfg: LocalizationConfig) -> None:
+        self.cfg = cfg
+        self.slots = semantic_map.slots
+        self.corners = np.array([s.corners for s in self.slots]).reshape(-1, 4, 2)
+        self.corner_cov = np.array([s.corner_covariances for s in self.slots]).reshape(-1, 4, 2, 2)
+        self._slot_tree = cKDTree(self.corners.mean(axis=1)) if len(self.slots) else None
+        self.by_label: dict[str, list[int]] = {}
+        for i, s in enumerate(self.slots):
+            if s.label is not None:
+                self.by_label.setdefault(s.label, []).append(i)
+        self.tags = {(t.family, t.tag_id): (i, t) for i, t in enumerate(semantic_map.tags)}
+        self.markings = semantic_map.markings
+        self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
+        self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
+        samples, owners = [], []
+        for i, (a, b) in enumerate(zip(self.marking_a, self.marking_b, strict=True)):
+            n = max(2, int(math.ceil(np.linalg.norm(b - a) / _MARKING_SAMPLE)) + 1)
+            samples.append(a + np.linspace(0, 1, n)[:, None] * (b - a))
+            owners.extend([i] * n)
+        self._marking_tree = cKDTree(np.vstack(samples)) if samples else None
+        self._marking_owner = np.array(owners, dtype=int)
+        self._slot_gate = chi2.ppf(cfg.slot_gate, 8)
+        self._tag_gate = chi2.ppf(cfg.tag_gate, 3)
+        self._marking_gates = {n: chi2.ppf(cfg.marking_gate, n) for n in range(1, 5)}
+
+    # ------------------------------------------------------------------ frame
+    def associate(self, frame: FrameObservations, pose: FloatArray, P: FloatArray) -> Associations:
+        """Associate the observations of ``frame`` at the predicted ``pose`` (3,) with pose
+        covariance ``P`` (3, 3)."""
+        out = Associations()
+        if self.cfg.use_tags:
+            self._tags(frame, pose, P, out)
+        if self.cfg.use_slots:
+            self._slots(frame, pose, P, out)
+        if self.cfg.use_markings:
+            self._markings(frame, pose, P, out)
+        return out
+
+    def _tags(self, frame, pose, P, out: Associations) -> None:
+        for obs in frame.tags:
+            if np.hypot(*obs.vTt[:2]) > self.cfg.tag_range_limit:
+                continue
+            entry = self.tags.get((obs.family, obs.tag_id))
+            if entry is None:
+                continue
+            index, tag = entry
+            R = np.array(obs.covariance, dtype=float)
+            Rv = rotation(pose[2]).T
+            k = self.cfg.map_covariance_scale
+            R[:2, :2] += k * Rv @ tag.covariance[:2, :2] @ Rv.T
+            R[2, 2] += k * tag.covariance[2, 2]
+            m = TagMeasurement(np.asarray(obs.vTt, float), R, np.asarray(tag.mTt, float))
+            if _d2(m, pose, P) <= self._tag_gate:
+                out.measurements.append(m)
+                out.kinds.append("tag")
+                out.landmarks.append(index)
+            else:
+                out.rejected["tag"] += 1
+
+    def _slot_measurement(self, obs, j: int, pose: FloatArray) -> PointMeasurement:
+        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
+        Rv = rotation(pose[2]).T
+        R = np.eye(8) * sigma**2
+        scale = self.cfg.map_covariance_scale
+        for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
+            R[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += scale * Rv @ self.corner_cov[j, k] @ Rv.T
+        return PointMeasurement(np.asarray(obs.vCorners, float).ravel(), R, self.corners[j])
+
+    def _slots(self, frame, pose, P, out: Associations) -> None:
+        if self._slot_tree is None:
+            return
+        used: set[int] = set()
+        for obs in frame.slots:
+            confident = (
+                obs.label is not None
+                and obs.label_confidence >= self.cfg.id_confidence_high
+                and obs.label in self.by_label
+            )
+            if confident:
+                best = self._best(obs, self.by_label[obs.label], pose, P, used, ratio=False)
+                if best is not None:
+                    self._accept(out, "slot", *best)
+                    used.add(best[1])
+                    continue
+                out.label_conflicts += 1
+            centre = transform_points(pose, np.asarray(obs.vCorners).mean(axis=0)[None, :])[0]
+            near = self._slot_tree.query_ball_point(centre, self.cfg.search_radius)
+            best = self._best(obs, near, pose, P, used, ratio=True)
+            if best is None:
+                out.rejected["slot"] += 1
+            else:
+                self._accept(out, "slot", *best)
+                used.add(best[1])
+
+    def _best(self, obs, candidates, pose, P, used, ratio: bool):
+        scored = []
+        for j in candidates:
+            if j in used:
+                continue
+            m = self._slot_measurement(obs, j, pose)
+            scored.append((_d2(m, pose, P), j, m))
+        if not scored:
+            return None
+        scored.sort(key=lambda s: s[0])
+        d2, j, m = scored[0]
+        if d2 > self._slot_gate:
+            return None
+        if ratio and len(scored) > 1 and scored[1][0] < self.cfg.second_nearest_ratio * max(d2, 8):
+            return None
+        return m, j
+
+    def _accept(self, out: Associations, kind: str, measurement, landmark: int) -> None:
+        out.measurements.append(measurement)
+        out.kinds.append(kind)
+        out.landmarks.append(landmark)
+
+    def _markings(self, frame, pose, P, out: Associations) -> None:
+        if self._marking_tree is None:
+            return
+        sigma = self.cfg.marking_endpoint_sigma
+        max_angle = math.radians(self.cfg.marking_max_angle_deg)
+        for obs in frame.markings:  # a long marking may be seen in several pieces
+            vE = np.array([obs.vA, obs.vB], dtype=float)
+            length = float(np.linalg.norm(vE[1] - vE[0]))
+            if length < self.cfg.marking_min_length:
+                continue
+            mE = transform_points(pose, vE)
+            d_obs = (mE[1] - mE[0]) / length
+            near = self._marking_tree.query_ball_point(
+                mE.mean(axis=0), length / 2 + self.cfg.search_radius / 2
+            )
+            scored = []
+            for j in sorted(set(self._marking_owner[near].tolist())):
+                a, b = self.marking_a[j], self.marking_b[j]
+                d_map = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+                if abs(d_obs[0] * d_map[1] - d_obs[1] * d_map[0]) > math.sin(max_angle):
+                    continue
+                m = MarkingMeasurement.build(
+                    pose, vE, np.array([a, a]), np.array([b, b]), sigma, margin=2 * sigma
+                )
+                scored.append((_d2(m, pose, P), j, m))
+            if not scored:
+                out.rejected["marking"] += 1
+                continue
+            scored.sort(key=lambda s: s[0])
+            d2, j, m = scored[0]
+            dof = len(m.z)
+            if d2 > self._marking_gates[dof] or (
+                len(scored) > 1 and scored[1][0] < self.cfg.second_nearest_ratio * max(d2, dof)
+            ):
+                out.rejected["marking"] += 1
+                continue
+            self._accept(out, "marking", m, j)
+
+
+def _d2(m, pose: FloatArray, P: FloatArray) -> float:
+    """Squared Mahalanobis distance of measurement ``m`` at ``pose`` (linearised)."""
+    H = m.jacobian(pose)
+    r = m.residual(m.predict(pose)[0])
+    S = H @ P @ H.T + m.R
+    return float(r @ np.linalg.solve(S, r))

@@ -1,0 +1,203 @@
+"""The online localizer: one filter step per camera frame, with health and recovery.
+
+Per frame (observations in the vehicle frame, time ``t``):
+
+1. the odometry samples up to ``t`` are applied (predict to each sample, update ``v`` and
+   ``yaw_rate`` with it), then the state is predicted to ``t``;
+2. the observations are associated against the local map (:mod:`.association`);
+3. all associated measurements are stacked into one update (EKF or sigma points) and the
+   whole frame is dropped if its normalised innovation exceeds the frame gate (Houben);
+4. health: ``tracking`` when an update was applied, ``coasting`` when nothing was
+   applied, ``lost`` when the position uncertainty exceeds its limit or several frames in a
+   row had observations of which none could be used; ``relocalized`` on the frame the pose
+   came from global relocalization (:mod:`.relocalize`: tags, or several confidently read
+   slot IDs that agree);
+5. recovery: while lost, and every ``check_every`` frames while tracking, the frame is
+   relocalized globally; a global pose that contradicts the filter (outside the gate) twice
+   in a row, or any global pose while lost, resets the filter there. So a wrong start, a
+   kidnap or a divergence is repaired from the map alone, and ``--init auto`` is the same
+   mechanism started in the ``initializing`` state.
+
+Poses and covariances are in the map frame (m, rad); times in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from semslam.config import LocalizationConfig
+from semslam.errors import DriveError
+from semslam.geometry import FloatArray, wrap_angle
+from semslam.localization.association import LocalMap
+from semslam.localization.filter import CtrvFilter, ProcessNoise
+from semslam.localization.measurements import stack
+from semslam.localization.recent import RecentFrames
+from semslam.localization.relocalize import Relocalizer
+from semslam.motion import ctrv_predict
+from semslam.types import FrameObservations, SemanticMap
+
+INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
+    "initializing", "tracking", "coasting", "lost", "relocalized"
+)
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """The localizer's answer for one frame."""
+
+    t: float
+    pose: FloatArray  # (3,) x, y, yaw in the map frame; NaN while initializing
+    covariance: FloatArray  # (3, 3)
+    status: str
+    associated: int
+    rejected: int
+    update_ms: float  # association + update (the filter's work for the frame's observations)
+
+
+class Localizer:
+    """Track a vehicle in ``semantic_map`` from odometry and per-frame observations.
+
+    Args:
+        semantic_map: the map (from ``semslam map``).
+        cfg: the ``localization`` configuration section.
+        odometry_t, odometry_speed, odometry_yaw_rate: (N,) samples (s, m/s, rad/s), each
+            holding until the next one.
+        initial_pose: (3,) known start pose, or None to find it from the map (auto).
+    """
+
+    def __init__(
+        self,
+        semantic_map: SemanticMap,
+        cfg: LocalizationConfig,
+        odometry_t: FloatArray,
+        odometry_speed: FloatArray,
+        odometry_yaw_rate: FloatArray,
+        initial_pose: FloatArray | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.local_map = LocalMap(semantic_map, cfg)
+        self.relocalizer = Relocalizer(
+            semantic_map,
+            min_label_confidence=cfg.relocalize_label_confidence,
+            min_slots=cfg.relocalize_min_slots,
+            max_tag_range=cfg.tag_range_limit,
+        )
+        self.odo_t = np.asarray(odometry_t, dtype=float)
+        self.odo_v = np.asarray(odometry_speed, dtype=float)
+        self.odo_w = np.asarray(odometry_yaw_rate, dtype=float)
+        noise = ProcessNoise(
+            cfg.acceleration_sigma, cfg.yaw_acceleration_sigma, cfg.position_walk, cfg.yaw_walk
+        )
+        self.filter = CtrvFilter(np.zeros(5), np.eye(5), noise, cfg.sigma_alpha)
+        self.initialized = False
+        self.t: float | None = None
+        self._next_odometry = 0
+        self._failures = 0  # frames in a row with observations and nothing applied
+        self._disagreements = 0
+        self._frames = 0
+        self._frame_gates: dict[int, float] = {}
+        self._odometry_pose = np.zeros(5)  # dead reckoning in its own frame: x, y, yaw, v, w
+        self.recent = RecentFrames(cfg.relocalize_window)
+        if initial_pose is not None:
+            sp, sy = cfg.init_position_sigma, math.radians(cfg.init_yaw_sigma_deg)
+            self._reset(np.asarray(initial_pose, dtype=float), np.diag([sp**2, sp**2, sy**2]))
+
+    # ------------------------------------------------------------------ public
+    def step(self, frame: FrameObservations) -> FrameEstimate:
+        """Process one frame; frames must come in time order."""
+        if self.t is not None and frame.t < self.t:
+            raise DriveError(f"frame at {frame.t:.3f} s comes after {self.t:.3f} s: time went back")
+        self._advance(frame.t)
+        self._frames += 1
+        self.recent.add(self._odometry_pose[:3], frame)
+        if not self.initialized:
+            return self._try_relocalize(frame, INITIALIZING)
+        started = time.perf_counter()
+        assoc = self.local_map.associate(frame, self.filter.pose, self.filter.pose_covariance)
+        applied = 0
+        rejected = assoc.rejected_total
+        if assoc.count:
+            z, R, measurements = stack(assoc.measurements)
+            innovation = self.filter.innovation(measurements, R, self.cfg.update)
+            if innovation.nis <= self._frame_gate(len(z)):
+                self.filter.apply(innovation)
+                applied = assoc.count
+            else:
+                rejected += assoc.count
+        update_ms = (time.perf_counter() - started) * 1e3
+        observed = len(frame.slots) + len(frame.tags)
+        self._failures = 0 if applied or observed < 2 else self._failures + 1
+        sigma = math.sqrt(max(np.linalg.eigvalsh(self.filter.P[:2, :2])))
+        lost = sigma > self.cfg.lost_position_sigma or self._failures >= self.cfg.lost_rejections
+        if lost:
+            return self._try_relocalize(frame, LOST, applied, rejected, update_ms)
+        if self._frames % self.cfg.check_every == 0 and self._contradicted(frame):
+            return self._try_relocalize(frame, LOST, applied, rejected, update_ms)
+        status = TRACKING if applied else COASTING
+        return self._estimate(status, applied, rejected, update_ms)
+
+    # ------------------------------------------------------------------ internals
+    def _advance(self, t: float) -> None:
+        """Apply odometry samples up to ``t`` and predict to ``t``."""
+        f = self.filter
+        while self._next_odometry < len(self.odo_t) and self.odo_t[self._next_odometry] <= t:
+            i = self._next_odometry
+            if self.t is not None:
+                f.predict(self.odo_t[i] - self.t)
+                self._odometry_pose = ctrv_predict(self._odometry_pose, self.odo_t[i] - self.t)
+            self._odometry_pose[3:] = self.odo_v[i], self.odo_w[i]
+            self.t = float(self.odo_t[i])
+            f.update_odometry(self.odo_v[i], self.odo_w[i], self.cfg.speed_sigma,
+                              self.cfg.yaw_rate_sigma)
+            self._next_odometry += 1
+        if self.t is not None:
+            f.predict(t - self.t)
+            self._odometry_pose = ctrv_predict(self._odometry_pose, t - self.t)
+        self.t = t
+
+    def _frame_gate(self, dof: int) -> float:
+        if dof not in self._frame_gates:
+            self._frame_gates[dof] = chi2.ppf(self.cfg.frame_gate, dof)
+        return self._frame_gates[dof]
+
+    def _contradicted(self, frame: FrameObservations) -> bool:
+        """Does a global relocalization of this frame contradict the filter (twice in a row)?"""
+        found = self.relocalizer.locate(self.recent.merged() or frame)
+        if found is None:
+            return False
+        e = found.mTv - self.filter.pose
+        e[2] = wrap_angle(e[2])
+        d2 = e @ np.linalg.solve(found.covariance + self.filter.pose_covariance, e)
+        self._disagreements = self._disagreements + 1 if d2 > chi2.ppf(0.99999, 3) else 0
+        return self._disagreements >= 2
+
+    def _try_relocalize(self, frame, status_if_not, applied=0, rejected=0, update_ms=0.0):
+        found = self.relocalizer.locate(self.recent.merged() or frame)
+        if found is None:
+            return self._estimate(status_if_not, applied, rejected, update_ms)
+        self._reset(found.mTv, found.covariance)
+        return self._estimate(RELOCALIZED, applied, rejected, update_ms)
+
+    def _reset(self, pose: FloatArray, covariance: FloatArray) -> None:
+        i = max(self._next_odometry - 1, 0)
+        v = self.odo_v[i] if len(self.odo_v) else 0.0
+        w = self.odo_w[i] if len(self.odo_w) else 0.0
+        P = np.zeros((5, 5))
+        P[:3, :3] = covariance
+        P[3, 3], P[4, 4] = self.cfg.speed_sigma**2, self.cfg.yaw_rate_sigma**2
+        self.filter.reset(np.array([*pose, v, w]), P)
+        self.initialized = True
+        self._failures = 0
+        self._disagreements = 0
+
+    def _estimate(self, status, associated, rejected, update_ms) -> FrameEstimate:
+        if not self.initialized:
+            pose, cov = np.full(3, np.nan), np.full((3, 3), np.nan)
+        else:
+            pose, cov = self.filter.pose, self.filter.pose_covariance
+        return FrameEstimate(float(self.t), pose, cov, status, associated, rejected, update_ms)

@@ -1,0 +1,186 @@
+"""Measurement models of the localizer: what the car should see from a pose, and how that
+changes with the pose.
+
+Every model predicts a stacked measurement vector from vehicle poses ``mTv = (x, y, yaw)``
+in the map frame (metres, radians). ``predict`` is vectorised over a (K, 3) batch of poses
+(the sigma-point update evaluates 11 at once); ``jacobian`` is the analytic (m, 3)
+derivative at one pose (the EKF update; checked numerically in the tests). The filter pads
+the Jacobian with zeros for the speed and yaw-rate columns of its state.
+
+- :class:`PointMeasurement`: map points (slot corners, metres) seen in the vehicle frame,
+  ``vP = R(yaw)^T (mP - t)``.
+- :class:`TagMeasurement`: a tag pose seen in the vehicle frame, ``vTt = mTv^-1 * mTt``.
+- :class:`MarkingMeasurement`: Houben's line update. Each detected end point ``vE``,
+  placed in the map by the pose, is projected onto the associated map marking and clamped
+  to its end points. Inside the marking only the signed distance across the line is
+  measured (one row, expected value 0: a detection may be shorter than the painted line,
+  so its end says nothing along it); beyond an end point the detection overshoots the
+  marking, and the end point itself is the measurement (two rows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from semslam.geometry import FloatArray, wrap_angle
+
+
+def point_jacobian(pose: FloatArray, mP: FloatArray) -> FloatArray:
+    """(2N, 3) derivative of ``R(yaw)^T (mP - t)`` (rows x0, y0, x1, ...) at ``pose``."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d = mP - pose[:2]
+    H = np.zeros((2 * len(mP), 3))
+    H[0::2, 0], H[0::2, 1] = -c, -s
+    H[1::2, 0], H[1::2, 1] = s, -c
+    H[0::2, 2] = -s * d[:, 0] + c * d[:, 1]
+    H[1::2, 2] = -c * d[:, 0] - s * d[:, 1]
+    return H
+
+
+def _rotate_to_vehicle(yaw: FloatArray, d: FloatArray) -> FloatArray:
+    """``R(yaw)^T d`` for (K,) yaws and (K, N, 2) vectors -> (K, N, 2)."""
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """A stacked measurement: ``z`` observed, ``R`` its covariance, ``angle_rows`` the rows
+    holding angles (their residuals are wrapped)."""
+
+    z: FloatArray
+    R: FloatArray
+    angle_rows: tuple[int, ...] = field(default=(), kw_only=True)
+
+    def residual(self, predicted: FloatArray) -> FloatArray:
+        """``z - predicted`` for (m,) or (K, m) predictions, angles wrapped."""
+        r = self.z - predicted
+        for i in self.angle_rows:
+            r[..., i] = wrap_angle(r[..., i])
+        return r
+
+
+@dataclass(frozen=True)
+class PointMeasurement(Measurement):
+    """Map points ``mP`` (N, 2) observed at ``z`` = (N, 2) flattened, in the vehicle frame."""
+
+    mP: FloatArray
+
+    def predict(self, poses: FloatArray) -> FloatArray:
+        poses = np.atleast_2d(poses)
+        d = self.mP[None, :, :] - poses[:, None, :2]
+        return _rotate_to_vehicle(poses[:, 2], d).reshape(len(poses), -1)
+
+    def jacobian(self, pose: FloatArray) -> FloatArray:
+        return point_jacobian(pose, self.mP)
+
+
+@dataclass(frozen=True)
+class TagMeasurement(Measurement):
+    """A map tag at ``mTt`` (x, y, yaw) observed as ``z`` = vTt (x, y, yaw)."""
+
+    mTt: FloatArray
+    angle_rows: tuple[int, ...] = field(default=(2,), kw_only=True)
+
+    def predict(self, poses: FloatArray) -> FloatArray:
+        poses = np.atleast_2d(poses)
+        d = (self.mTt[:2] - poses[:, :2])[:, None, :]
+        xy = _rotate_to_vehicle(poses[:, 2], d)[:, 0, :]
+        return np.column_stack([xy, wrap_angle(self.mTt[2] - poses[:, 2])])
+
+    def jacobian(self, pose: FloatArray) -> FloatArray:
+        H = np.zeros((3, 3))
+        H[:2] = point_jacobian(pose, self.mTt[None, :2])
+        H[2, 2] = -1.0
+        return H
+
+
+@dataclass(frozen=True)
+class MarkingMeasurement(Measurement):
+    """Detected end points ``vE`` (N, 2, vehicle frame) against map markings ``a``, ``b``
+    (N, 2 each, map frame), row kinds fixed at the linearisation pose ``clamped`` (N,):
+    False gives one row (signed distance across the line, z = 0), True two rows (the
+    clamped marking end in the vehicle frame, z = vE)."""
+
+    vE: FloatArray
+    a: FloatArray
+    b: FloatArray
+    clamped: FloatArray
+    end: FloatArray  # (N, 2) the marking end a clamped point is compared with
+
+    @staticmethod
+    def build(
+        pose: FloatArray,
+        vE: FloatArray,
+        a: FloatArray,
+        b: FloatArray,
+        sigma: float,
+        margin: float = 0.0,
+    ) -> MarkingMeasurement:
+        """The measurement of end points ``vE`` against markings ``(a, b)``, deciding at
+        ``pose`` which end points fall beyond their marking (by more than ``margin``)."""
+        mE = _to_map(pose, vE)
+        d = b - a
+        length2 = np.maximum((d * d).sum(axis=1), 1e-12)
+        s = ((mE - a) * d).sum(axis=1) / length2
+        L = np.sqrt(length2)
+        clamped = (s < -margin / L) | (s > 1 + margin / L)
+        end = np.where((s < 0.5)[:, None], a, b)
+        z = np.concatenate([vE[i] if clamped[i] else [0.0] for i in range(len(vE))])
+        R = np.eye(len(z)) * sigma**2
+        return MarkingMeasurement(z, R, vE, a, b, clamped, end)
+
+    def predict(self, poses: FloatArray) -> FloatArray:
+        poses = np.atleast_2d(poses)
+        out = []
+        for i in range(len(self.vE)):
+            if self.clamped[i]:
+                d = (self.end[i] - poses[:, :2])[:, None, :]
+                out.append(_rotate_to_vehicle(poses[:, 2], d)[:, 0, :])
+            else:
+                out.append(self._across(poses, i)[:, None])
+        return np.concatenate(out, axis=1) if out else np.zeros((len(poses), 0))
+
+    def _across(self, poses: FloatArray, i: int) -> FloatArray:
+        """Signed distance of end point i (placed by each pose) across marking i's line."""
+        d = self.b[i] - self.a[i]
+        n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        ex = poses[:, 0] + c * self.vE[i, 0] - s * self.vE[i, 1]
+        ey = poses[:, 1] + s * self.vE[i, 0] + c * self.vE[i, 1]
+        return (ex - self.a[i, 0]) * n[0] + (ey - self.a[i, 1]) * n[1]
+
+    def jacobian(self, pose: FloatArray) -> FloatArray:
+        rows = []
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        for i in range(len(self.vE)):
+            if self.clamped[i]:
+                rows.append(point_jacobian(pose, self.end[i][None, :]))
+            else:
+                d = self.b[i] - self.a[i]
+                n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+                dE = np.array([-s * self.vE[i, 0] - c * self.vE[i, 1],
+                               c * self.vE[i, 0] - s * self.vE[i, 1]])
+                rows.append(np.array([[n[0], n[1], n @ dE]]))
+        return np.vstack(rows) if rows else np.zeros((0, 3))
+
+
+def _to_map(pose: FloatArray, vP: FloatArray) -> FloatArray:
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.column_stack(
+        [pose[0] + c * vP[:, 0] - s * vP[:, 1], pose[1] + s * vP[:, 0] + c * vP[:, 1]]
+    )
+
+
+def stack(measurements: list) -> tuple[FloatArray, FloatArray, list]:
+    """Observed vector and block-diagonal covariance of several measurements."""
+    z = np.concatenate([m.z for m in measurements])
+    R = np.zeros((len(z), len(z)))
+    i = 0
+    for m in measurements:
+        n = len(m.z)
+        R[i : i + n, i : i + n] = m.R
+        i += n
+    return z, R, measurements

@@ -1,0 +1,128 @@
+"""The localizer's measurement models and Kalman filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from semslam.geometry import between, compose, inverse_transform_points
+from semslam.localization.filter import CtrvFilter, ProcessNoise
+from semslam.localization.measurements import (
+    MarkingMeasurement,
+    PointMeasurement,
+    TagMeasurement,
+    stack,
+)
+
+POSE = np.array([3.0, -2.0, 0.7])
+NOISE = ProcessNoise(1.0, 0.5, 0.01, 0.001)
+
+
+def numerical_jacobian(m, pose, eps=1e-6):
+    J = np.zeros((len(m.z), 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = eps
+        J[:, i] = -(m.residual(m.predict(pose + d)[0]) - m.residual(m.predict(pose - d)[0])) / (
+            2 * eps
+        )
+    return J
+
+
+def test_point_measurement_predicts_vehicle_frame_points_and_its_jacobian_is_right():
+    mP = np.array([[5.0, 1.0], [4.0, -3.0]])
+    m = PointMeasurement(np.zeros(4), np.eye(4), mP)
+    np.testing.assert_allclose(m.predict(POSE)[0], inverse_transform_points(POSE, mP).ravel())
+    np.testing.assert_allclose(m.jacobian(POSE), numerical_jacobian(m, POSE), atol=1e-7)
+
+
+def test_tag_measurement_is_the_relative_pose_and_its_jacobian_is_right():
+    mTt = np.array([8.0, 2.0, -2.9])
+    m = TagMeasurement(np.zeros(3), np.eye(3), mTt)
+    np.testing.assert_allclose(m.predict(POSE)[0], between(POSE, mTt), atol=1e-12)
+    np.testing.assert_allclose(m.jacobian(POSE), numerical_jacobian(m, POSE), atol=1e-7)
+
+
+def test_marking_measurement_measures_across_inside_and_the_end_point_beyond():
+    a, b = np.array([[0.0, 0.0]]), np.array([[10.0, 0.0]])
+    pose = np.array([2.0, 1.0, 0.3])
+    inside = inverse_transform_points(pose, np.array([[4.0, 0.1]]))  # 0.1 m off the line
+    m = MarkingMeasurement.build(pose, inside, a, b, 0.05)
+    assert len(m.z) == 1 and not m.clamped[0]
+    np.testing.assert_allclose(m.predict(pose)[0], [0.1], atol=1e-12)
+    np.testing.assert_allclose(m.jacobian(pose), numerical_jacobian(m, pose), atol=1e-7)
+    beyond = inverse_transform_points(pose, np.array([[11.0, 0.0]]))  # past the end b
+    m = MarkingMeasurement.build(pose, beyond, a, b, 0.05)
+    assert len(m.z) == 2 and m.clamped[0]
+    np.testing.assert_allclose(m.residual(m.predict(pose)[0]), inverse_transform_points(
+        pose, np.array([[11.0, 0.0]]))[0] - inverse_transform_points(pose, b)[0], atol=1e-12)
+    np.testing.assert_allclose(m.jacobian(pose), numerical_jacobian(m, pose), atol=1e-7)
+
+
+def test_sigma_points_reproduce_mean_and_covariance():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(5, 5))
+    f = CtrvFilter(np.array([1, 2, 0.3, 2.0, 0.1]), A @ A.T + np.eye(5), NOISE, alpha=0.3)
+    X, w = f.sigma_points()
+    assert X.shape == (11, 5) and w.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(w @ X, f.x, atol=1e-12)
+    d = X - f.x
+    np.testing.assert_allclose((d * w[:, None]).T @ d, f.P, atol=1e-10)
+
+
+@pytest.mark.parametrize("mode", ["ekf", "sigma"])
+def test_update_with_points_pulls_the_pose_to_the_truth(mode):
+    truth = np.array([0.0, 0.0, 0.0])
+    mP = np.array([[3.0, 2.0], [3.0, -2.0], [6.0, 2.0], [6.0, -2.0]])
+    z = inverse_transform_points(truth, mP).ravel()
+    m = PointMeasurement(z, np.eye(8) * 0.02**2, mP)
+    f = CtrvFilter(np.array([0.2, -0.1, 0.03, 1.0, 0.0]), np.diag([0.1, 0.1, 0.01, 1, 1]), NOISE)
+    for _ in range(3):
+        _, R, ms = stack([m])
+        f.apply(f.innovation(ms, R, mode))
+    np.testing.assert_allclose(f.pose, truth, atol=5e-3)
+    assert np.all(np.linalg.eigvalsh(f.P) > 0)
+
+
+def test_ekf_and_sigma_agree_on_a_small_step():
+    mP = np.array([[5.0, 1.0], [4.0, -3.0]])
+    pose = np.array([0.1, 0.0, 0.01])
+    m = PointMeasurement(inverse_transform_points(np.zeros(3), mP).ravel(), np.eye(4) * 1e-2,
+                         mP)
+    f = CtrvFilter(np.array([*pose, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-5, 1, 1]), NOISE)
+    a = f.innovation([m], m.R, "ekf")
+    b = f.innovation([m], m.R, "sigma")
+    np.testing.assert_allclose(a.nu, b.nu, atol=1e-4)
+    np.testing.assert_allclose(a.S, b.S, rtol=1e-2)
+    np.testing.assert_allclose(a.C, b.C, atol=1e-6)
+
+
+def test_prediction_follows_ctrv_and_grows_the_covariance():
+    f = CtrvFilter(np.array([0, 0, 0, 2.0, 0.5]), np.eye(5) * 1e-4, NOISE)
+    before = np.linalg.det(f.P[:3, :3])
+    f.predict(1.0)
+    expected = compose(np.zeros(3), [2 * np.sin(0.5) / 0.5, 2 * (1 - np.cos(0.5)) / 0.5, 0.5])
+    np.testing.assert_allclose(f.pose, expected, atol=1e-12)
+    assert np.linalg.det(f.P[:3, :3]) > before
+
+
+def test_odometry_update_pulls_speed_and_yaw_rate():
+    f = CtrvFilter(np.array([0, 0, 0, 1.0, 0.0]), np.eye(5), NOISE)
+    f.update_odometry(2.0, 0.1, 0.01, 0.001)
+    assert f.x[3] == pytest.approx(2.0, abs=1e-3) and f.x[4] == pytest.approx(0.1, abs=1e-5)
+
+
+def test_covariance_stays_symmetric_positive_definite_over_a_long_drive():
+    rng = np.random.default_rng(1)
+    f = CtrvFilter(np.array([0, 0, 0, 2.0, 0.1]), np.eye(5) * 0.01, NOISE)
+    mP = np.array([[3.0, 2.0], [3.0, -2.0]])
+    for k in range(3000):
+        f.predict(0.02)
+        f.update_odometry(2.0 + rng.normal(0, 0.05), 0.1 + rng.normal(0, 0.005), 0.05, 0.005)
+        if k % 5 == 0:
+            world = compose(f.pose, [3.0, 0.0, 0.0])[None, :2] + mP - mP.mean(axis=0)
+            z = inverse_transform_points(f.pose, world).ravel() + rng.normal(0, 0.03, 4)
+            m = PointMeasurement(z, np.eye(4) * 0.03**2, world)
+            f.apply(f.innovation([m], m.R, "ekf" if k % 2 else "sigma"))
+    np.testing.assert_allclose(f.P, f.P.T, atol=0)
+    assert np.all(np.linalg.eigvalsh(f.P) > 0)
