@@ -169,6 +169,18 @@ class MappingConfig(_Section):
     min_accepted_observations: int = Field(
         2, ge=1, description="slots with fewer accepted observations are dropped from the map"
     )
+    use_markings: bool = Field(True, description="map painted lines as line landmarks")
+    marking_sigma: float = Field(0.05, gt=0, description="detected line end point, across, m")
+    marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
+    marking_min_confidence: float = Field(0.3, ge=0, le=1)
+    marking_angle_tolerance_deg: float = Field(5.0, gt=0, le=30)
+    marking_distance_gate: float = Field(
+        0.2, gt=0, description="m: both end points this near a line to belong to it"
+    )
+    marking_gap: float = Field(1.0, ge=0, description="m: a detection may extend a line by this")
+    marking_min_support: int = Field(
+        5, ge=1, description="detections before a line joins the graph (and the map)"
+    )
 
 
 class LocalizationConfig(_Section):
@@ -207,7 +219,14 @@ class LocalizationConfig(_Section):
         0.9999, gt=0, lt=1, description="whole-frame chi-square gate probability (Houben)"
     )
     marking_endpoint_sigma: float = Field(0.05, gt=0, description="marking end point, m")
+    marking_map_sigma: float = Field(
+        0.05, ge=0, description="m: uncertainty of a map marking's line (maps store none)"
+    )
     marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
+    marking_clamp_reach: float = Field(
+        0.3, ge=0, description="m: a detection end this far past a map marking's end is "
+        "clamped to it (Houben); farther, the map's marking is taken as incomplete",
+    )
     marking_max_angle_deg: float = Field(10.0, gt=0, description="marking association angle")
     use_slots: bool = Field(True, description="update with slot corners")
     use_tags: bool = Field(True, description="update with tags")
@@ -216,13 +235,15 @@ class LocalizationConfig(_Section):
     lost_rejections: int = Field(
         5, ge=1, description="frames in a row whose observations were all rejected: lost"
     )
-    relocalize_label_confidence: float = Field(0.8, ge=0, le=1)
+    relocalize_label_confidence: float = Field(
+        0.6, ge=0, le=1, description="slot IDs read at least this confidently may relocalize"
+    )
     relocalize_min_slots: int = Field(2, ge=1, description="slots that must agree to relocalize")
     relocalize_window: float = Field(
         2.0, ge=0, description="s of recent frames, placed by odometry, used to relocalize"
     )
     check_every: int = Field(
-        5, ge=1, description="frames between consistency checks against global relocalization"
+        2, ge=1, description="frames between consistency checks against global relocalization"
     )
 
 

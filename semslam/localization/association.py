@@ -49,10 +49,12 @@ class Associations:
     landmarks: list[int] = field(default_factory=list)  # index into the map's list of that kind
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     label_conflicts: int = 0  # confident labels whose slot did not fit (misreads, or lost)
+    observations: int = 0  # associated observations (all of a frame's markings are one
+    # stacked measurement, landmark -1)
 
     @property
     def count(self) -> int:
-        return len(self.measurements)
+        return self.observations
 
     @property
     def rejected_total(self) -> int:
@@ -173,48 +175,104 @@ class LocalMap:
             return None
         return m, j
 
-    def _accept(self, out: Associations, kind: str, measurement, landmark: int) -> None:
+    def _accept(self, out: Associations, kind: str, measurement, landmark: int,
+                observations: int = 1) -> None:
         out.measurements.append(measurement)
         out.kinds.append(kind)
         out.landmarks.append(landmark)
+        out.observations += observations
 
     def _markings(self, frame, pose, P, out: Associations) -> None:
-        if self._marking_tree is None:
+        """Houben's association, vectorised over all (detection, candidate marking) pairs of
+        the frame: the gate and the ratio test use the distances of both end points across
+        each candidate line; the winners become one stacked measurement that also clamps
+        end points at their marking's ends, and each winner is gated again with it."""
+        if self._marking_tree is None or not frame.markings:
             return
-        sigma = self.cfg.marking_endpoint_sigma
-        max_angle = math.radians(self.cfg.marking_max_angle_deg)
-        for obs in frame.markings:  # a long marking may be seen in several pieces
-            vE = np.array([obs.vA, obs.vB], dtype=float)
-            length = float(np.linalg.norm(vE[1] - vE[0]))
-            if length < self.cfg.marking_min_length:
-                continue
-            mE = transform_points(pose, vE)
-            d_obs = (mE[1] - mE[0]) / length
-            near = self._marking_tree.query_ball_point(
-                mE.mean(axis=0), length / 2 + self.cfg.search_radius / 2
-            )
-            scored = []
-            for j in sorted(set(self._marking_owner[near].tolist())):
-                a, b = self.marking_a[j], self.marking_b[j]
-                d_map = (b - a) / max(np.linalg.norm(b - a), 1e-9)
-                if abs(d_obs[0] * d_map[1] - d_obs[1] * d_map[0]) > math.sin(max_angle):
-                    continue
-                m = MarkingMeasurement.build(
-                    pose, vE, np.array([a, a]), np.array([b, b]), sigma, margin=2 * sigma
-                )
-                scored.append((_d2(m, pose, P), j, m))
-            if not scored:
-                out.rejected["marking"] += 1
-                continue
-            scored.sort(key=lambda s: s[0])
-            d2, j, m = scored[0]
-            dof = len(m.z)
-            if d2 > self._marking_gates[dof] or (
-                len(scored) > 1 and scored[1][0] < self.cfg.second_nearest_ratio * max(d2, dof)
+        cfg = self.cfg
+        vE = np.array([[m.vA, m.vB] for m in frame.markings], dtype=float)  # (D, 2, 2)
+        length = np.linalg.norm(vE[:, 1] - vE[:, 0], axis=1)
+        vE = vE[length >= cfg.marking_min_length]
+        length = length[length >= cfg.marking_min_length]
+        if not len(vE):
+            return
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        Rm = np.array([[c, -s], [s, c]])
+        mE = vE @ Rm.T + pose[:2]  # (D, 2, 2) map frame
+        near = self._marking_tree.query_ball_point(
+            mE.mean(axis=1), length / 2 + cfg.search_radius / 2
+        )
+        det = np.concatenate([np.full(len(n), i) for i, n in enumerate(near)]).astype(int)
+        own = self._marking_owner[np.concatenate(near).astype(int)] if len(det) else det
+        pairs = np.unique(det * len(self.markings) + own)
+        det, own = pairs // len(self.markings), pairs % len(self.markings)
+        a, b = self.marking_a[own], self.marking_b[own]
+        L = np.maximum(np.linalg.norm(b - a, axis=1), 1e-9)
+        u = (b - a) / L[:, None]
+        n = np.column_stack([-u[:, 1], u[:, 0]])
+        d_obs = (mE[det, 1] - mE[det, 0]) / length[det, None]
+        along = np.einsum("pk,pek->pe", u, mE[det] - a[:, None, :])  # (pairs, 2)
+        keep = (np.abs(np.einsum("pk,pk->p", n, d_obs)) < math.sin(
+            math.radians(cfg.marking_max_angle_deg)
+        )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < L + 0.5)
+        det, own, a, n = det[keep], own[keep], a[keep], n[keep]
+        R1 = cfg.marking_endpoint_sigma**2 + cfg.marking_map_sigma**2
+        # residuals (0 - across) and their rows [n, n . dR/dyaw e] for both end points
+        r = -np.einsum("pk,pek->pe", n, mE[det] - a[:, None, :])
+        e = vE[det]  # (pairs, 2, 2)
+        dE = np.stack([-s * e[..., 0] - c * e[..., 1], c * e[..., 0] - s * e[..., 1]], -1)
+        H = np.empty((len(det), 2, 3))
+        H[..., 0], H[..., 1] = n[:, None, 0], n[:, None, 1]
+        H[..., 2] = np.einsum("pk,pek->pe", n, dE)
+        S = H @ P @ H.transpose(0, 2, 1) + np.eye(2) * R1
+        det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        d2 = (S[:, 1, 1] * r[:, 0] ** 2 - 2 * S[:, 0, 1] * r[:, 0] * r[:, 1]
+              + S[:, 0, 0] * r[:, 1] ** 2) / det_S
+        if not len(det):
+            out.rejected["marking"] += len(vE)
+            return
+        order = np.lexsort((d2, det))
+        det, own, d2 = det[order], own[order], d2[order]
+        first = np.flatnonzero(np.r_[True, det[1:] != det[:-1]])
+        winners = []
+        for i, f in enumerate(first):
+            nxt = first[i + 1] if i + 1 < len(first) else len(det)
+            runner_up = d2[f + 1] if nxt > f + 1 else math.inf
+            if d2[f] <= self._marking_gates[2] and runner_up >= cfg.second_nearest_ratio * max(
+                d2[f], 2.0
             ):
-                out.rejected["marking"] += 1
-                continue
-            self._accept(out, "marking", m, j)
+                winners.append(f)
+        out.rejected["marking"] += len(vE) - len(winners)
+        if not winners:
+            return
+        w = np.array(winners)
+        k = np.repeat(own[w], 2)
+        m = MarkingMeasurement.build(
+            pose, vE[det[w]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
+            math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
+            reach=cfg.marking_clamp_reach,
+        )
+        # gate each winner again with its clamped rows
+        Hm, rm = m.jacobian(pose), m.residual(m.predict(pose)[0])
+        bounds = np.r_[m.rows[0::2], len(m.z)]
+        good = []
+        for i in range(len(w)):
+            sl = slice(bounds[i], bounds[i + 1])
+            Sb = Hm[sl] @ P @ Hm[sl].T + m.R[sl, sl]
+            if rm[sl] @ np.linalg.solve(Sb, rm[sl]) <= self._marking_gates[sl.stop - sl.start]:
+                good.append(i)
+        out.rejected["marking"] += len(w) - len(good)
+        if not good:
+            return
+        if len(good) < len(w):
+            g = np.array(good)
+            k = np.repeat(own[w[g]], 2)
+            m = MarkingMeasurement.build(
+                pose, vE[det[w[g]]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
+                math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
+                reach=cfg.marking_clamp_reach,
+            )
+        self._accept(out, "marking", m, -1, observations=len(good))
 
 
 def _d2(m, pose: FloatArray, P: FloatArray) -> float:

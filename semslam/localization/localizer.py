@@ -131,7 +131,7 @@ class Localizer:
                 rejected += assoc.count
         update_ms = (time.perf_counter() - started) * 1e3
         observed = len(frame.slots) + len(frame.tags)
-        self._failures = 0 if applied or observed < 2 else self._failures + 1
+        self._failures = 0 if applied or observed == 0 else self._failures + 1
         sigma = math.sqrt(max(np.linalg.eigvalsh(self.filter.P[:2, :2])))
         lost = sigma > self.cfg.lost_position_sigma or self._failures >= self.cfg.lost_rejections
         if lost:

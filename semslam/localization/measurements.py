@@ -20,6 +20,7 @@ the Jacobian with zeros for the speed and yaw-rate columns of its state.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -102,13 +103,15 @@ class MarkingMeasurement(Measurement):
     """Detected end points ``vE`` (N, 2, vehicle frame) against map markings ``a``, ``b``
     (N, 2 each, map frame), row kinds fixed at the linearisation pose ``clamped`` (N,):
     False gives one row (signed distance across the line, z = 0), True two rows (the
-    clamped marking end in the vehicle frame, z = vE)."""
+    clamped marking end ``end`` in the vehicle frame, z = vE). ``rows`` (N,) is the first
+    row of each end point. Vectorised over end points and poses."""
 
     vE: FloatArray
     a: FloatArray
     b: FloatArray
     clamped: FloatArray
     end: FloatArray  # (N, 2) the marking end a clamped point is compared with
+    rows: FloatArray
 
     @staticmethod
     def build(
@@ -118,53 +121,64 @@ class MarkingMeasurement(Measurement):
         b: FloatArray,
         sigma: float,
         margin: float = 0.0,
+        reach: float = math.inf,
     ) -> MarkingMeasurement:
         """The measurement of end points ``vE`` against markings ``(a, b)``, deciding at
-        ``pose`` which end points fall beyond their marking (by more than ``margin``)."""
+        ``pose`` which end points fall beyond their marking: by more than ``margin`` (noise)
+        and less than ``reach`` they are clamped to its end; farther out the map's marking
+        is taken as incomplete there (a map drawn from what was seen), and only the
+        distance across the line is measured."""
         mE = _to_map(pose, vE)
         d = b - a
         length2 = np.maximum((d * d).sum(axis=1), 1e-12)
         s = ((mE - a) * d).sum(axis=1) / length2
         L = np.sqrt(length2)
-        clamped = (s < -margin / L) | (s > 1 + margin / L)
+        beyond = np.maximum(-s, s - 1) * L  # m past the nearer end (< 0: inside)
+        clamped = (beyond > margin) & (beyond < reach)
         end = np.where((s < 0.5)[:, None], a, b)
-        z = np.concatenate([vE[i] if clamped[i] else [0.0] for i in range(len(vE))])
+        sizes = np.where(clamped, 2, 1)
+        rows = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+        z = np.zeros(int(sizes.sum()))
+        z[rows[clamped]] = vE[clamped, 0]
+        z[rows[clamped] + 1] = vE[clamped, 1]
         R = np.eye(len(z)) * sigma**2
-        return MarkingMeasurement(z, R, vE, a, b, clamped, end)
+        return MarkingMeasurement(z, R, vE, a, b, clamped, end, rows)
+
+    def _normals(self) -> FloatArray:
+        d = self.b - self.a
+        return np.column_stack([-d[:, 1], d[:, 0]]) / np.linalg.norm(d, axis=1)[:, None]
 
     def predict(self, poses: FloatArray) -> FloatArray:
         poses = np.atleast_2d(poses)
-        out = []
-        for i in range(len(self.vE)):
-            if self.clamped[i]:
-                d = (self.end[i] - poses[:, :2])[:, None, :]
-                out.append(_rotate_to_vehicle(poses[:, 2], d)[:, 0, :])
-            else:
-                out.append(self._across(poses, i)[:, None])
-        return np.concatenate(out, axis=1) if out else np.zeros((len(poses), 0))
-
-    def _across(self, poses: FloatArray, i: int) -> FloatArray:
-        """Signed distance of end point i (placed by each pose) across marking i's line."""
-        d = self.b[i] - self.a[i]
-        n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        ex = poses[:, 0] + c * self.vE[i, 0] - s * self.vE[i, 1]
-        ey = poses[:, 1] + s * self.vE[i, 0] + c * self.vE[i, 1]
-        return (ex - self.a[i, 0]) * n[0] + (ey - self.a[i, 1]) * n[1]
+        out = np.zeros((len(poses), len(self.z)))
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        free = ~self.clamped
+        if free.any():  # signed distance across the line of each end point
+            e, a, n = self.vE[free], self.a[free], self._normals()[free]
+            ex = poses[:, :1] + c * e[:, 0] - s * e[:, 1]  # (K, F)
+            ey = poses[:, 1:2] + s * e[:, 0] + c * e[:, 1]
+            out[:, self.rows[free]] = (ex - a[:, 0]) * n[:, 0] + (ey - a[:, 1]) * n[:, 1]
+        if self.clamped.any():  # the marking end in the vehicle frame
+            d = self.end[self.clamped][None, :, :] - poses[:, None, :2]
+            v = _rotate_to_vehicle(poses[:, 2], d)
+            out[:, self.rows[self.clamped]] = v[..., 0]
+            out[:, self.rows[self.clamped] + 1] = v[..., 1]
+        return out
 
     def jacobian(self, pose: FloatArray) -> FloatArray:
-        rows = []
+        H = np.zeros((len(self.z), 3))
         c, s = np.cos(pose[2]), np.sin(pose[2])
-        for i in range(len(self.vE)):
-            if self.clamped[i]:
-                rows.append(point_jacobian(pose, self.end[i][None, :]))
-            else:
-                d = self.b[i] - self.a[i]
-                n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-                dE = np.array([-s * self.vE[i, 0] - c * self.vE[i, 1],
-                               c * self.vE[i, 0] - s * self.vE[i, 1]])
-                rows.append(np.array([[n[0], n[1], n @ dE]]))
-        return np.vstack(rows) if rows else np.zeros((0, 3))
+        free = ~self.clamped
+        if free.any():
+            e, n = self.vE[free], self._normals()[free]
+            dEx = -s * e[:, 0] - c * e[:, 1]
+            dEy = c * e[:, 0] - s * e[:, 1]
+            H[self.rows[free]] = np.column_stack([n[:, 0], n[:, 1], n[:, 0] * dEx + n[:, 1] * dEy])
+        if self.clamped.any():
+            J = point_jacobian(pose, self.end[self.clamped])
+            H[self.rows[self.clamped]] = J[0::2]
+            H[self.rows[self.clamped] + 1] = J[1::2]
+        return H
 
 
 def _to_map(pose: FloatArray, vP: FloatArray) -> FloatArray:

@@ -12,6 +12,8 @@ current vehicle frame where
   the best confidence of a reading of that label times the winner's share of all summed
   confidences (a misread among several right readings loses, a split vote is not
   confident, and one physical slot never counts as several agreeing slots);
+- with three or more frames remembered, a slot seen only once is dropped (false
+  detections come and go from frame to frame; real slots stay in view);
 - the most recent observation of each tag is kept.
 """
 
@@ -77,7 +79,10 @@ class RecentFrames:
             else:
                 groups.append([s])
                 centres.append(c)
+        confirm = len(self._frames) >= 3  # false detections are independent from frame to frame
         for group in groups:
+            if confirm and len(group) < 2:
+                continue
             votes: dict[str, float] = {}
             for s in group:
                 if s.label is not None:

@@ -2,45 +2,51 @@
 
 Houben et al. needed a coarse initial pose; semslam finds one from a single frame's
 observations (vehicle frame, metres, radians) and the :class:`SemanticMap` (map frame).
-
-Policy, in order of trust:
+A wrong pose is far worse than none, so every step refuses rather than guesses.
 
 1. **Tags** are trusted. Each observed tag whose ``(family, tag_id)`` is in the map (and
-   within ``max_tag_range``) gives ``mTv = mTt * inverse(vTt)`` with the observation
+   within ``max_tag_range``) gives ``mTv = mTt * inverse(vTt)``, with the observation
    covariance and the map tag covariance propagated through the composition. Several
-   tags are fused by information weighting after a consensus step: the largest set of
-   tags that pairwise pass a 3-dof chi-square gate wins, members failing the gate
-   against the fused pose are dropped, and a tie between two disjoint sets (two tags
-   that disagree, or one tag ID that appears twice in the map) gives no tag pose.
-2. **Slots** make pose hypotheses by :func:`fit_se2` of one observed slot's 4 corners
-   onto one map slot's 4 corners (same corner order). Without tags the pairs come from
-   labels: every observed slot with ``label_confidence >= min_label_confidence`` whose
-   label is in the map, once per map slot carrying that label (a duplicated label is
-   several hypotheses). A hypothesis is supported by the labelled observed slots whose
+   tags are fused by information weighting after a consensus: the largest set of tags
+   that pass a 3-dof chi-square gate (99.9 %) against one seed wins, members failing it
+   against the fused pose are then dropped, and two equally large sets that disagree
+   (two tags that disagree, or one tag ID found twice in the map) give no tag pose.
+2. **Slots around a tag pose** refine it: each observed slot against its nearest map
+   slots, one :func:`fit_se2` of its 4 corners onto the map slot's 4 corners per pair,
+   pairs kept when that pose passes a chi-square gate against the tag pose. The pose
+   explaining the most observed slots (then the closest to the tags) wins unless a pose
+   it does not explain is as well supported and nearly as close (a tie: tags alone).
+   One slot is enough here: the tags already say which slot it is. The slot fit is
+   fused with the tags (``"tags+slots"``), or the tags stand alone (``"tags"``).
+3. **Slots alone** (no usable tag pose): every observed slot with
+   ``label_confidence >= min_label_confidence`` whose label is in the map, paired with
+   each map slot carrying that label (a duplicated label is several hypotheses), gives
+   a pose by :func:`fit_se2`. Its support is the number of such labelled slots whose
    corners, moved by it, lie within ``inlier_distance`` of the corners of a map slot with
-   the same label. Only these label agreements count as support: a garage is periodic,
-   so a pose one slot pitch off (the typical wrong ID is a neighbour's) fits unlabelled
-   slots just as well as the right pose, and counting them would let a single wrong ID
-   relocalize the car with confidence. The best-supported hypothesis is accepted when
-   it has at least ``min_slots`` supporting slots and no distinct hypothesis (more than
-   1 m or 10 deg away) has as many. With a tag pose the pairs instead come from the tag
-   pose: each observed slot against the nearest map slots, kept when the single-slot
-   pose passes a 3-dof chi-square gate against the tag pose and a confident label does
-   not contradict it; support ties are broken by the Mahalanobis distance to the tag
-   pose, and the slot pose must pass the same gate before it is fused with the tags
-   (``source="tags+slots"``; otherwise the tags alone, ``"tags"``).
-3. The accepted hypothesis is refined by :func:`fit_se2` over all corners of the slots
-   that agree with it (supporting slots plus unlabelled or low-confidence slots lying
-   within ``inlier_distance`` of any map slot, found with a k-d tree on the map slot
-   centres), twice. Its covariance is the linearised least-squares one,
-   ``(J^T W J)^-1`` with ``W`` from the observations' ``corner_sigma`` and the map corner
-   covariances (at the corners' centroid: ``sigma^2 / n`` in position,
-   ``sigma^2 / sum |c - centroid|^2`` in yaw), plus a floor.
+   their label (once per map slot: frames merged into one may see a slot twice).
+   Unlabelled slots do not vote: a garage is periodic, and the typical wrong ID is a
+   neighbour's, so a pose one slot pitch off fits unlabelled slots as well as the true
+   one does. The best-supported pose is accepted when it has at least
+   ``min_slots`` supporters, no distinct pose (more than 1 m or 10 deg away) has as many
+   (ambiguous), and the frame does not speak against it: read labels of any confidence
+   that fit it, minus read labels that land on a map slot with another label, minus
+   slots that land on no map slot, must still be at least ``min_slots`` (two neighbours'
+   IDs misread with the same shift fit a pose one pitch off; the frame's other slots
+   then contradict it).
+4. An accepted slot pose is refined by :func:`fit_se2` over all corners of the agreeing
+   slots (its supporters plus any observed slot lying within ``inlier_distance`` of a map
+   slot, found with a k-d tree on the map slot centres, unless a confident label says
+   it is another slot), weighted by ``1 / (corner_sigma^2 + map corner variance)``,
+   twice. Its covariance is the linearised least-squares ``(J^T W J)^-1`` (at the
+   corners' centroid exactly ``sigma^2 / n`` in position and
+   ``sigma^2 / sum |c - centroid|^2`` in yaw, moved to the vehicle origin) plus
+   :data:`COVARIANCE_FLOOR`.
 
-Corner order: the simulator (and the mapper, which keeps the detector's order) lists
-slot corners entrance-left, entrance-right, rear-right, rear-left as seen from the
-aisle, whatever way the car faces, so a car turned by 180 degrees sees the same order
-and no relabelled (rotated) order is tried.
+Corner order: the simulator lists slot corners entrance-left, entrance-right,
+rear-right, rear-left as seen from the aisle (``ExactSensor`` moves the world slot's
+corners into the vehicle frame unchanged; ghosts are shifted copies or rectangles in
+the same order), and the mapper keeps the detector's order, so the order does not
+depend on the way the car faces and no 180-degree relabelled order is tried.
 """
 
 from __future__ import annotations
@@ -55,15 +61,13 @@ from semslam.evaluation.alignment import fit_se2
 from semslam.geometry import FloatArray, compose, inverse, wrap_angle
 from semslam.types import FrameObservations, SemanticMap, TagFamily
 
-CHI2_3DOF_999 = 16.266  # 99.9 % quantile of chi-square with 3 degrees of freedom
-DISTINCT_DISTANCE = 1.0  # hypotheses farther apart than this (m) ...
+CHI2_3DOF_999 = 16.266  # 99.9 % quantile of chi-square, 3 dof: tags against each other
+TAG_SLOT_GATE = 25.0  # chi-square (3 dof, ~5 sigma) of slot poses against the tag pose
+TAG_TIE_MARGIN = 9.0  # around a tag pose, a rival this much less likely (chi-square) is a tie
+DISTINCT_DISTANCE = 1.0  # slot hypotheses farther apart than this (m) ...
 DISTINCT_YAW = math.radians(10.0)  # ... or this (rad) are different poses
-TAG_TIE_MARGIN = 9.0  # with a tag pose, a rival within this much chi-square is a tie
-COVARIANCE_FLOOR = np.diag([0.01**2, 0.01**2, math.radians(0.1) ** 2])
-_NEAREST_MAP_SLOTS = 3
-TAG_MIN_SLOTS = 1
-TAG_SLOT_GATE = 25.0
-TAG_LABEL_VETO = False  # map slots tried per observed slot around a tag pose
+COVARIANCE_FLOOR = np.diag([0.01**2, 0.01**2, math.radians(0.1) ** 2])  # added to slot fits
+NEAREST_MAP_SLOTS = 3  # map slots tried per observed slot around a tag pose
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,7 +116,9 @@ class _SlotFit:
 def _rotations(yaw: FloatArray) -> FloatArray:
     """(H, 2, 2) rotation matrices of (H,) yaws."""
     c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    R = np.empty((len(yaw), 2, 2))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, -s, s, c
+    return R
 
 
 def _fit_batch(src: FloatArray, dst: FloatArray) -> FloatArray:
@@ -168,8 +174,8 @@ class Relocalizer:
     Args:
         semantic_map: the map (map frame).
         min_label_confidence: observed slot labels below this are treated as unread.
-        min_slots: label agreements a slots-only pose needs (and slots a tag pose
-            needs before slots are fused with it).
+        min_slots: labelled slots that must agree with a pose found from slots alone
+            (and its net evidence, see the module docstring).
         inlier_distance: largest corner distance (m) of an agreeing slot.
         max_tag_range: tags farther than this from the vehicle (m) are ignored.
     """
@@ -208,8 +214,6 @@ class Relocalizer:
         self._tags: dict[tuple[TagFamily, int], list] = {}
         for t in semantic_map.tags:
             self._tags.setdefault((TagFamily(t.family), int(t.tag_id)), []).append(t)
-        span = np.ptp(self._corners.reshape(-1, 2), axis=0) if len(slots) else np.zeros(2)
-        self._query_radius = float(np.hypot(*span)) + 1.0
 
     # ------------------------------------------------------------------ public
 
@@ -227,8 +231,13 @@ class Relocalizer:
                 if d2 <= TAG_SLOT_GATE:
                     fused = _fuse([pose, slot_g])
                     return Relocalization(
-                        fused.mean, fused.cov, "tags+slots", n_tags,
-                        fit.used, fit.agreeing, fit.rms,
+                        fused.mean,
+                        fused.cov,
+                        "tags+slots",
+                        n_tags,
+                        fit.used,
+                        fit.agreeing,
+                        fit.rms,
                     )
             return Relocalization(pose.mean, pose.cov, "tags", n_tags, 0, 0, tag_rms)
         if obs is None:
@@ -249,8 +258,12 @@ class Relocalizer:
                 continue
             for mt in self._tags.get((TagFamily(obs.family), int(obs.tag_id)), ()):
                 mTt = np.asarray(mt.mTt, dtype=float)
-                g = _tag_candidate(mTt, np.asarray(mt.covariance, dtype=float), vTt,
-                                   np.asarray(obs.covariance, dtype=float))
+                g = _tag_candidate(
+                    mTt,
+                    np.asarray(mt.covariance, dtype=float),
+                    vTt,
+                    np.asarray(obs.covariance, dtype=float),
+                )
                 cands.append((k, g, mTt, vTt))
         if not cands:
             return None
@@ -260,8 +273,7 @@ class Relocalizer:
         for i in range(n):
             for j in range(i, n):
                 gi, gj = cands[i][1], cands[j][1]
-                d2[i, j] = d2[j, i] = _mahalanobis2(_pose_delta(gi.mean, gj.mean),
-                                                    gi.cov + gj.cov)
+                d2[i, j] = d2[j, i] = _mahalanobis2(_pose_delta(gi.mean, gj.mean), gi.cov + gj.cov)
                 ok[i, j] = ok[j, i] = d2[i, j] <= CHI2_3DOF_999
         # consensus: for each seed, the closest candidate of every other observed tag
         # consistent with it; the seed with the most tags wins, a rival seed with as many
@@ -314,8 +326,7 @@ class Relocalizer:
         code_any = np.array(
             [self._label_code.get(s.label, -1) if s.label else -1 for s in frame.slots], int
         )
-        confident = np.array([s.label_confidence >= self.min_label_confidence
-                              for s in frame.slots])
+        confident = np.array([s.label_confidence >= self.min_label_confidence for s in frame.slots])
         code = np.where(confident, code_any, -1)
         return V, var, code, code_any
 
@@ -328,12 +339,17 @@ class Relocalizer:
         return H, err <= self.inlier_distance
 
     @staticmethod
-    def _support(agree: FloatArray, ps: FloatArray, n_obs: int) -> FloatArray:
-        """Distinct observed slots agreeing with each hypothesis -> (H,)."""
-        hits = np.zeros((agree.shape[0], n_obs), dtype=bool)
+    def _support(agree: FloatArray, ps: FloatArray, pm: FloatArray) -> FloatArray:
+        """Per hypothesis, the agreeing pairs counted once per observed slot and once per
+        map slot (several frames merged into one may see a slot twice) -> (H,)."""
+        _, obs_i = np.unique(ps, return_inverse=True)
+        _, map_i = np.unique(pm, return_inverse=True)
         rows, cols = np.nonzero(agree)
-        hits[rows, ps[cols]] = True
-        return hits.sum(axis=1)
+        by_obs = np.zeros((agree.shape[0], obs_i.max() + 1), dtype=bool)
+        by_map = np.zeros((agree.shape[0], map_i.max() + 1), dtype=bool)
+        by_obs[rows, obs_i[cols]] = True
+        by_map[rows, map_i[cols]] = True
+        return np.minimum(by_obs.sum(axis=1), by_map.sum(axis=1))
 
     def _slots_global(self, obs) -> _SlotFit | None:
         V, var, code, code_any = obs
@@ -343,7 +359,7 @@ class Relocalizer:
         ps = np.concatenate([np.full(len(self._slots_of_label[code[i]]), i) for i in idx])
         pm = np.concatenate([self._slots_of_label[code[i]] for i in idx])
         H, agree = self._hypotheses(V, ps, pm)
-        support = self._support(agree, ps, len(V))
+        support = self._support(agree, ps, pm)
         best = int(np.argmax(support))
         if support[best] < self.min_slots:
             return None
@@ -386,7 +402,7 @@ class Relocalizer:
         """Slots matched around a tag pose: each observed slot against its nearest map
         slots, pairs gated against the prior, the best-supported pose that has no rival."""
         V, var, code, code_any = obs
-        k = min(_NEAREST_MAP_SLOTS, len(self._centres))
+        k = min(NEAREST_MAP_SLOTS, len(self._centres))
         centres = _move(prior.mean[None], V.mean(axis=1)[:, None, :])[0, :, 0]
         _, nn = self._tree.query(centres, k=k)
         ps = np.repeat(np.arange(len(V)), k)
@@ -405,23 +421,15 @@ class Relocalizer:
             return None
         H, agree, d2 = H[keep], agree[np.ix_(keep, keep)], d2[keep]
         ps, pm = ps[keep], pm[keep]
-        support = self._support(agree, ps, len(V))
+        support = self._support(agree, ps, pm)
         best = int(np.lexsort((d2, -support))[0])
-        if support[best] < TAG_MIN_SLOTS:
-            return None
         # a rival: a pose the best one does not explain, as well supported and nearly as
         # close to the tags
         rivals = ~agree[best] & (support >= support[best]) & (d2 - d2[best] < TAG_TIE_MARGIN)
         if np.any(rivals):
             return None
         pairs = {int(ps[j]): int(pm[j]) for j in np.flatnonzero(agree[best])}
-        fit = self._refine(H[best], V, var, np.full_like(code, -1), pairs, int(support[best]))
-        if fit is None:
-            return None
-        agree_l, contra, _ = self._explain(fit.pose, V, code_any)
-        if TAG_LABEL_VETO and contra > agree_l:
-            return None
-        return fit
+        return self._refine(H[best], V, var, np.full_like(code, -1), pairs, int(support[best]))
 
     def _refine(
         self,
@@ -496,11 +504,13 @@ def _fit_covariance(pose: FloatArray, src: FloatArray, var: FloatArray | float) 
     rx = c * src[:, 0] - s * src[:, 1]
     ry = s * src[:, 0] + c * src[:, 1]
     sw = w.sum()
-    info = np.array([
-        [sw, 0.0, -(w @ ry)],
-        [0.0, sw, w @ rx],
-        [-(w @ ry), w @ rx, w @ (rx * rx + ry * ry)],
-    ])
+    info = np.array(
+        [
+            [sw, 0.0, -(w @ ry)],
+            [0.0, sw, w @ rx],
+            [-(w @ ry), w @ rx, w @ (rx * rx + ry * ry)],
+        ]
+    )
     return np.linalg.inv(info)
 
 
@@ -520,8 +530,9 @@ def _fit_covariance_batch(H: FloatArray, src: FloatArray, var: FloatArray) -> Fl
     return np.linalg.inv(info)
 
 
-def _tag_candidate(mTt: FloatArray, map_cov: FloatArray, vTt: FloatArray,
-                   obs_cov: FloatArray) -> _Gaussian:
+def _tag_candidate(
+    mTt: FloatArray, map_cov: FloatArray, vTt: FloatArray, obs_cov: FloatArray
+) -> _Gaussian:
     """``mTv = mTt * inverse(vTt)`` with both covariances propagated to first order."""
     q = inverse(vTt)
     mTv = compose(mTt, q)
@@ -529,8 +540,9 @@ def _tag_candidate(mTt: FloatArray, map_cov: FloatArray, vTt: FloatArray,
     c, s = math.cos(th), math.sin(th)
     J_inv = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0.0, 0.0, -1.0]])
     ca, sa = math.cos(mTt[2]), math.sin(mTt[2])
-    J_a = np.array([[1.0, 0.0, -sa * q[0] - ca * q[1]], [0.0, 1.0, ca * q[0] - sa * q[1]],
-                    [0.0, 0.0, 1.0]])
+    J_a = np.array(
+        [[1.0, 0.0, -sa * q[0] - ca * q[1]], [0.0, 1.0, ca * q[0] - sa * q[1]], [0.0, 0.0, 1.0]]
+    )
     J_b = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
     J_o = J_b @ J_inv
     cov = J_a @ map_cov @ J_a.T + J_o @ obs_cov @ J_o.T

@@ -136,6 +136,72 @@ def calibrated_odometry_residual(
     return residual
 
 
+def line_normal(theta: float) -> tuple[FloatArray, FloatArray]:
+    """Unit normal ``n = (cos theta, sin theta)`` of a line and its derivative."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([c, s]), np.array([-s, c])
+
+
+def marking_observation_residual(pose_key: int, line_key: int, anchor: FloatArray,
+                                 measured: FloatArray):
+    """Residual of a painted line seen from a keyframe: the signed distances (m) of the
+    detection's end points ``measured`` ((2, 2), vehicle frame) from the line landmark.
+
+    The line is a Vector2 ``(theta, d)``: the points ``p`` with ``n(theta) . (p - anchor) =
+    d``, the anchor a fixed map point near the line (it keeps theta and d well
+    conditioned far from the origin). Only the distance across the line is measured: a
+    detection may be a piece of the painted line, so its ends say nothing along it.
+    """
+    anchor = np.asarray(anchor, dtype=float)
+    e = np.asarray(measured, dtype=float)
+
+    def residual(values: gtsam.Values, want_jacobians: bool):
+        pose = values.atPose2(pose_key)
+        theta, d = np.asarray(values.atVector(line_key), dtype=float)
+        c, s = np.cos(pose.theta()), np.sin(pose.theta())
+        R = np.array([[c, -s], [s, c]])
+        p = np.array([pose.x(), pose.y()]) + e @ R.T  # (2, 2) end points in the map
+        n, dn = line_normal(theta)
+        r = (p - anchor) @ n - d
+        if not want_jacobians:
+            return r, None
+        nR = n @ R
+        H_pose = np.column_stack([np.full(2, nR[0]), np.full(2, nR[1]),
+                                  -e[:, 1] * nR[0] + e[:, 0] * nR[1]])
+        H_line = np.column_stack([(p - anchor) @ dn, -np.ones(2)])
+        return r, {pose_key: H_pose, line_key: H_line}
+
+    return residual
+
+
+def same_line_residual(key_a: int, anchor_a: FloatArray, key_b: int, anchor_b: FloatArray):
+    """Residual tying two line landmarks (``(theta, d)`` with their anchors) into one: the
+    angle between them (rad) and the distance (m) of line b's foot point
+    ``anchor_b + d_b n_b`` from line a."""
+    anchor_a = np.asarray(anchor_a, dtype=float)
+    anchor_b = np.asarray(anchor_b, dtype=float)
+
+    def residual(values: gtsam.Values, want_jacobians: bool):
+        ta, da = np.asarray(values.atVector(key_a), dtype=float)
+        tb, db = np.asarray(values.atVector(key_b), dtype=float)
+        na, dna = line_normal(ta)
+        nb, dnb = line_normal(tb)
+        foot = anchor_b + db * nb
+        angle = np.arctan2(np.sin(tb - ta), np.cos(tb - ta))
+        # lines are undirected: a normal flipped by pi describes the same line
+        flip = abs(angle) > np.pi / 2
+        if flip:
+            angle = np.arctan2(np.sin(tb - ta + np.pi), np.cos(tb - ta + np.pi))
+        r = np.array([angle, (foot - anchor_a) @ na - da])
+        if not want_jacobians:
+            return r, None
+        H_a = np.array([[-1.0, 0.0], [(foot - anchor_a) @ dna, -1.0]])
+        H_b = np.array([[1.0, 0.0], [db * (dnb @ na), nb @ na]])
+        return r, {key_a: H_a, key_b: H_b}
+
+    return residual
+
+
 def custom_factor(
     keys: Sequence[int], residual, noise: gtsam.noiseModel.Base
 ) -> gtsam.CustomFactor:

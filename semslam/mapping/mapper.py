@@ -37,11 +37,15 @@ from semslam.geometry import FloatArray, compose, transform_points, wrap_angle
 from semslam.mapping.factors import (
     calibrated_odometry_residual,
     custom_factor,
+    marking_observation_residual,
+    same_line_residual,
     slot_observation_residual,
     slot_shape_residual,
 )
 from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import SlotLandmarks, SlotPool
+from semslam.mapping.lines import LineLandmarks
+from semslam.mapping.markings import merge_marking_observations
 from semslam.mapping.maxmix import (
     Component,
     MaxMixture,
@@ -50,12 +54,22 @@ from semslam.mapping.maxmix import (
     null_hypothesis_noise,
 )
 from semslam.mapping.odometry import calibration_jacobian, odometry_between
-from semslam.types import FrameObservations, SemanticMap, Slot, SlotKind, SlotObservation, Tag
+from semslam.types import (
+    FrameObservations,
+    Marking,
+    MarkingObservation,
+    SemanticMap,
+    Slot,
+    SlotKind,
+    SlotObservation,
+    Tag,
+)
 
 X = gtsam.symbol_shorthand.X  # keyframe poses
 C = gtsam.symbol_shorthand.C  # slot corners: C(4 * slot + k)
 T = gtsam.symbol_shorthand.T  # tags
 K = gtsam.symbol_shorthand.K  # odometry calibration (speed scale, gyro bias)
+L = gtsam.symbol_shorthand.L  # painted lines (theta, d)
 
 _SHAPE_PRIORS = {  # (right angles, entrance width m, depth m, width sigma, depth sigma)
     SlotKind.PERPENDICULAR: (True, 2.5, 5.0, 0.4, 0.6),
@@ -140,6 +154,14 @@ class Mapper:
         self._label_votes: list[tuple[int, str, float]] = []  # from frames between keyframes
         self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
+        self.lines = LineLandmarks(
+            config.marking_angle_tolerance_deg,
+            config.marking_distance_gate,
+            config.marking_gap,
+            config.marking_min_support,
+        )
+        self.marking_detections: list[tuple[int, FloatArray, float, float]] = []
+        # (keyframe, end points (2, 2) vehicle frame, width, confidence): every one used
 
     # ------------------------------------------------------------------ frames
     def add_frame(self, frame: FrameObservations) -> bool:
@@ -225,6 +247,10 @@ class Mapper:
         for obs in frame.slots:
             self._add_slot_sighting(k, frame.t, obs)
         self.pool.expire(k)
+        if self.cfg.use_markings:
+            for marking in frame.markings:
+                self._add_marking(k, marking)
+            self.lines.expire(k)
         self._timing["association_s"] += time.perf_counter() - started
 
     # ------------------------------------------------------------------ tags
@@ -249,6 +275,48 @@ class Mapper:
                 X(k), key, gtsam.Pose2(*tag.vTt), gtsam.noiseModel.Gaussian.Covariance(cov)
             )
         )
+
+    # ------------------------------------------------------------------ markings
+    def _add_marking(self, k: int, obs: MarkingObservation) -> None:
+        """Associate a detected line piece with a line landmark (or start one)."""
+        vE = np.array([obs.vA, obs.vB], dtype=float)
+        if (
+            obs.confidence < self.cfg.marking_min_confidence
+            or np.linalg.norm(vE[1] - vE[0]) < self.cfg.marking_min_length
+        ):
+            return
+        self.marking_detections.append((k, vE, float(obs.width), float(obs.confidence)))
+        mE = transform_points(self.keyframe_poses[k], vE)
+        candidates = self.lines.candidates(mE)
+        if not candidates:
+            self.lines.start(mE, k).detections.append((k, vE, obs.width, obs.confidence))
+            return
+        if len(candidates) > 1 and candidates[1][1] < 2 * candidates[0][1] + 0.02:
+            return  # between two lines: leave it out rather than guess
+        line = self.lines.items[candidates[0][0]]
+        line.detections.append((k, vE, obs.width, obs.confidence))
+        if line.in_graph:
+            line.grow(mE)
+            self._add_marking_factor(line, k, vE, obs.confidence)
+            return
+        points = np.vstack([transform_points(self.keyframe_poses[j], e)
+                            for j, e, _, _ in line.detections])
+        self.lines.refit(line.index, points)
+        if len(line.detections) >= self.cfg.marking_min_support and self.use_graph:
+            line.in_graph = True
+            self.graph.add_vector(L(line.index), np.array([line.theta, line.d]))
+            for j, e, _, confidence in line.detections:
+                self._add_marking_factor(line, j, e, confidence)
+
+    def _add_marking_factor(self, line, k: int, vE: FloatArray, confidence: float) -> None:
+        sigma = self.cfg.marking_sigma / math.sqrt(max(confidence, 0.05))
+        residual = marking_observation_residual(X(k), L(line.index), line.anchor, vE)
+        noise = (
+            null_hypothesis_noise(np.eye(2) * sigma * sigma, self.null)
+            if self.robust
+            else gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+        )
+        self.graph.add_factor(custom_factor([X(k), L(line.index)], residual, noise))
 
     # ------------------------------------------------------------------ slots
     def _add_slot_sighting(self, k: int, t: float, obs: SlotObservation) -> None:
@@ -391,6 +459,10 @@ class Mapper:
             self.slots.set_corners(
                 s.index, np.array([g.point(C(4 * s.index + c)) for c in range(4)])
             )
+        here = self.keyframe_poses[-1][:2]
+        for line in self.lines.items:
+            if line.in_graph and (everything or self.lines._near(line, here, _REFRESH_RADIUS)):
+                line.theta, line.d = map(float, g.vector(L(line.index)))
 
     def _merge_duplicates(self) -> None:
         around = self.keyframe_poses[-1][:2]
@@ -401,6 +473,17 @@ class Mapper:
                     gtsam.BetweenFactorPoint2(C(4 * keep + c), C(4 * drop + c), np.zeros(2), noise)
                 )
             self.slots.items[drop].merged_into = keep
+        for keep, drop in self.lines.duplicates(around, _REFRESH_RADIUS):
+            a, b = self.lines.items[keep], self.lines.items[drop]
+            self.graph.add_factor(
+                custom_factor(
+                    [L(keep), L(drop)],
+                    same_line_residual(L(keep), a.anchor, L(drop), b.anchor),
+                    gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 5e-3])),
+                )
+            )
+            a.grow(np.array(b.end_points()))
+            b.merged_into = keep
 
     # ------------------------------------------------------------------ finish
     def finish(self) -> MappingResult:
@@ -555,4 +638,42 @@ class Mapper:
                     cov,
                 )
             )
-        return SemanticMap(slots=tuple(slots), tags=tuple(tags), markings=()), slot_of_landmark
+        markings = self._export_markings()
+        return SemanticMap(tuple(slots), tuple(tags), markings), slot_of_landmark
+
+    def _export_markings(self) -> tuple[Marking, ...]:
+        """Painted lines: the graph's line landmarks with extents re-measured from all their
+        detections at the final keyframe poses (or, without a graph, the detections placed
+        by odometry and merged)."""
+        poses = self.keyframe_poses
+        if not self.use_graph:
+            if not self.marking_detections:
+                return ()
+            segments = np.array([transform_points(poses[k], e)
+                                 for k, e, _, _ in self.marking_detections])
+            return merge_marking_observations(
+                segments,
+                np.array([w for _, _, w, _ in self.marking_detections]),
+                np.array([c for _, _, _, c in self.marking_detections]),
+                angle_tolerance_deg=self.cfg.marking_angle_tolerance_deg,
+                min_support=self.cfg.marking_min_support,
+                min_length=self.cfg.marking_min_length,
+            )
+        members: dict[int, list] = {}
+        for line in self.lines.items:
+            if line.merged_into == -1 or not (line.in_graph or line.merged_into is not None):
+                continue
+            members.setdefault(self.lines.resolve(line.index), []).extend(line.detections)
+        out = []
+        for index in sorted(members):
+            line, detections = self.lines.items[index], members[index]
+            if len(detections) < self.cfg.marking_min_support:
+                continue
+            points = np.vstack([transform_points(poses[k], e) for k, e, _, _ in detections])
+            s = line.along(points)
+            a = line.foot() + float(s.min()) * line.direction
+            b = line.foot() + float(s.max()) * line.direction
+            if np.linalg.norm(b - a) < self.cfg.marking_min_length:
+                continue
+            out.append(Marking(a, b, float(np.median([w for _, _, w, _ in detections]))))
+        return tuple(out)

@@ -30,7 +30,9 @@ Algorithm:
    of the cluster's observations, joined across holes up to ``gap``: a single
    false segment that happened to chain two collinear lines (stubs 1.5 m
    apart, say) covers the hole between them once only, so they come out
-   apart again (each refitted on its own end points). A line's extent runs
+   apart again (each refitted on its own end points). Outward, a line keeps
+   the tail seen once only (the last view before the paint left the top view)
+   but not a segment beyond a hole in the coverage. A line's extent runs
    between the end point projections at both extremes, taken robustly: start
    at the smallest (largest) projection, or at the 2nd (98th) percentile for
    clusters with many end points (a stray false segment cannot stretch the
@@ -66,6 +68,7 @@ _TRIM_FROM = 50  # end points from which a cluster's extremes are trimmed
 _SEEN = 2  # a line is where at least this many of its cluster's observations overlap
 _CHUNK = 2_000_000  # pairs tested at once (bounds the memory)
 _MIN_SEGMENT = 1e-9  # m, shorter observations have no direction
+_EPS = 1e-9  # m, slack of zone bounds that sit on an end point
 
 
 def merge_marking_observations(
@@ -307,12 +310,13 @@ def _zones(lo: FloatArray, hi: FloatArray, seen: int, gap: float, band: float):
 
     Stretches covered by at least ``seen`` observations, joined across holes up to
     ``gap``, are the lines; each gets the zone from which its end points are taken:
-    up to ``band`` past an inner stretch end, unbounded outward at the cluster's
-    two ends (a view's clipped tail is seen once only and still counts).
+    up to ``band`` past an inner stretch end and, at the cluster's two ends, out to
+    where the coverage first stops (a view's clipped tail is seen once only and
+    still counts; a segment beyond a hole does not).
     """
     x = np.concatenate([lo, hi])
     step = np.concatenate([np.ones(lo.size), -np.ones(hi.size)])
-    order = np.argsort(x, kind="stable")
+    order = np.argsort(x, kind="stable")  # starts before ends at ties: touching is no hole
     x, cover = x[order], np.cumsum(step[order])[:-1]
     strong = np.flatnonzero((cover >= seen) & (x[1:] > x[:-1]))
     if strong.size == 0:
@@ -328,7 +332,10 @@ def _zones(lo: FloatArray, hi: FloatArray, seen: int, gap: float, band: float):
         else:
             stretches.append([a, b])
     zones = [[a - band, b + band] for a, b in stretches]
-    zones[0][0], zones[-1][1] = -math.inf, math.inf
+    holes = np.flatnonzero(cover < 1)
+    before, after = holes[holes < first[0]], holes[holes > last[-1]]
+    zones[0][0] = float(x[before[-1] + 1]) - _EPS if before.size else -math.inf
+    zones[-1][1] = float(x[after[0]]) + _EPS if after.size else math.inf
     return zones
 
 

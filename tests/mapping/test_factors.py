@@ -5,7 +5,9 @@ import pytest
 from semslam.mapping.factors import (
     calibrated_odometry_residual,
     custom_factor,
+    marking_observation_residual,
     point_in_pose,
+    same_line_residual,
     slot_observation_residual,
     slot_shape_residual,
 )
@@ -139,3 +141,36 @@ def test_calibrated_odometry_jacobians_and_zero_at_truth():
         vm.update(K(0), values.atVector(K(0)) - d)
         num[:, k] = (res(vp, False)[0] - res(vm, False)[0]) / (2 * eps)
     assert np.allclose(H[K(0)], num, atol=1e-6)
+
+
+L = gtsam.symbol_shorthand.L
+
+
+def test_marking_observation_jacobians_are_numerically_right_and_zero_on_the_line():
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose2(1.0, -2.0, 0.7))
+    anchor = np.array([4.0, 3.0])
+    values.insert(L(0), np.array([0.4, 0.3]))
+    e = np.array([[2.0, 1.5], [6.0, -0.5]])
+    res = marking_observation_residual(X(0), L(0), anchor, e)
+    r, J = res(values, True)
+    for key in (X(0), L(0)):
+        assert np.allclose(J[key], _numerical(res, values, key), atol=1e-6)
+    # end points placed exactly on the line give zero residual
+    pose, n = gtsam.Pose2(1.0, -2.0, 0.7), np.array([np.cos(0.4), np.sin(0.4)])
+    foot, u = anchor + 0.3 * n, np.array([-n[1], n[0]])
+    on_line = np.array([pose.transformTo(foot + s * u) for s in (-2.0, 5.0)])
+    r, _ = marking_observation_residual(X(0), L(0), anchor, on_line)(values, False)
+    assert np.allclose(r, 0, atol=1e-12)
+
+
+@pytest.mark.parametrize("theta_b", [0.45, 0.45 + np.pi])
+def test_same_line_jacobians_are_numerically_right_for_both_normal_directions(theta_b):
+    values = gtsam.Values()
+    values.insert(L(0), np.array([0.4, 0.3]))
+    values.insert(L(1), np.array([theta_b, -0.2]))
+    res = same_line_residual(L(0), np.array([4.0, 3.0]), L(1), np.array([9.0, 1.0]))
+    r, J = res(values, True)
+    assert abs(r[0]) < 0.1  # flipped normals are the same line direction
+    for key in (L(0), L(1)):
+        assert np.allclose(J[key], _numerical(res, values, key), atol=1e-6)
