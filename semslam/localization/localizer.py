@@ -9,7 +9,7 @@ Per frame (observations in the vehicle frame, time ``t``):
    whole frame is dropped if its normalised innovation exceeds the frame gate (Houben);
 4. health: ``tracking`` when an update was applied, ``coasting`` when nothing was
    applied, ``lost`` when the position uncertainty exceeds its limit or several frames in a
-   row had observations of which none could be used; ``relocalized`` on the frame the pose
+   row had at least two observations of which none could be used; ``relocalized`` on the frame the pose
    came from global relocalization (:mod:`.relocalize`: tags, or several confidently read
    slot IDs that agree);
 5. recovery: while lost, and every ``check_every`` frames while tracking, the frame is
@@ -130,8 +130,8 @@ class Localizer:
             else:
                 rejected += assoc.count
         update_ms = (time.perf_counter() - started) * 1e3
-        observed = len(frame.slots) + len(frame.tags)
-        self._failures = 0 if applied or observed == 0 else self._failures + 1
+        considered = assoc.count + assoc.rejected_total  # one odd observation is no failure
+        self._failures = 0 if applied or considered < 2 else self._failures + 1
         sigma = math.sqrt(max(np.linalg.eigvalsh(self.filter.P[:2, :2])))
         lost = sigma > self.cfg.lost_position_sigma or self._failures >= self.cfg.lost_rejections
         if lost:
@@ -168,20 +168,28 @@ class Localizer:
     def _contradicted(self, frame: FrameObservations) -> bool:
         """Does a global relocalization of this frame contradict the filter (twice in a row)?"""
         found = self.relocalizer.locate(self.recent.merged() or frame)
-        if found is None:
+        if found is None or (found.source == "tags" and self._failures == 0):
+            # a tag alone does not overrule a filter whose updates pass: a tag that moved,
+            # or a misdetection, must not teleport a car that is tracking well
             return False
-        e = found.mTv - self.filter.pose
-        e[2] = wrap_angle(e[2])
-        d2 = e @ np.linalg.solve(found.covariance + self.filter.pose_covariance, e)
-        self._disagreements = self._disagreements + 1 if d2 > chi2.ppf(0.99999, 3) else 0
+        self._disagreements = 0 if self._plausible(found) else self._disagreements + 1
         return self._disagreements >= 2
 
     def _try_relocalize(self, frame, status_if_not, applied=0, rejected=0, update_ms=0.0):
         found = self.relocalizer.locate(self.recent.merged() or frame)
-        if found is None:
+        if found is None or (
+            self.initialized and found.source == "tags" and not self._plausible(found)
+        ):  # once tracking has begun, a far jump needs slots to back it, not one tag alone
             return self._estimate(status_if_not, applied, rejected, update_ms)
         self._reset(found.mTv, found.covariance)
         return self._estimate(RELOCALIZED, applied, rejected, update_ms)
+
+    def _plausible(self, found) -> bool:
+        """Is a global fix within the gate of the filter's own (perhaps inflated) belief?"""
+        e = found.mTv - self.filter.pose
+        e[2] = wrap_angle(e[2])
+        S = found.covariance + self.filter.pose_covariance
+        return float(e @ np.linalg.solve(S, e)) <= chi2.ppf(0.99999, 3)
 
     def _reset(self, pose: FloatArray, covariance: FloatArray) -> None:
         i = max(self._next_odometry - 1, 0)

@@ -1,0 +1,108 @@
+"""The localizer on short simulated drives against the true map of their world."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from semslam.config import LocalizationConfig, SimulationConfig
+from semslam.errors import DriveError
+from semslam.localization.localizer import Localizer
+from semslam.simulation.scenario import simulate_drive
+from semslam.types import FrameObservations, TagObservation
+
+
+@pytest.fixture(scope="module")
+def sim():
+    cfg = SimulationConfig()
+    cfg = cfg.model_copy(update={"drive": cfg.drive.model_copy(update={"max_duration": 60.0})})
+    return simulate_drive("small", 3, 0, cfg)
+
+
+def _run(sim, frames=None, initial="truth", **overrides):
+    cfg = LocalizationConfig(**overrides)
+    rec = sim.record
+    start = sim.frame_poses[0] if isinstance(initial, str) else initial
+    loc = Localizer(sim.world.to_map(), cfg, rec.t, rec.odo_speed, rec.odo_yaw_rate, start)
+    return loc, [loc.step(f) for f in (frames if frames is not None else sim.noisy)]
+
+
+def _errors(sim, estimates):
+    poses = np.array([e.pose for e in estimates])
+    pos = np.hypot(*(poses[:, :2] - sim.frame_poses[: len(poses), :2]).T)
+    yaw = np.abs(np.remainder(poses[:, 2] - sim.frame_poses[: len(poses), 2] + np.pi,
+                              2 * np.pi) - np.pi)
+    return pos, np.degrees(yaw)
+
+
+@pytest.mark.parametrize("update", ["ekf", "sigma"])
+def test_tracks_a_turning_drive_with_noisy_observations(sim, update):
+    turned = np.ptp(np.unwrap(sim.frame_poses[:, 2]))
+    assert turned > math.radians(80)  # the drive turns
+    _, estimates = _run(sim, update=update)
+    pos, yaw = _errors(sim, estimates)
+    assert np.sqrt(np.mean(pos**2)) < 0.08
+    assert np.sqrt(np.mean(yaw**2)) < 0.5
+    assert sum(e.status == "tracking" for e in estimates) > 0.8 * len(estimates)
+
+
+def test_converges_from_a_wrong_start(sim):
+    start = sim.frame_poses[0] + np.array([0.4, -0.3, math.radians(4)])
+    _, estimates = _run(sim, initial=start)
+    pos, yaw = _errors(sim, estimates)
+    assert pos[0] > 0.4
+    assert np.all(pos[30:] < 0.15) and np.all(yaw[30:] < 1.0)
+
+
+def test_covariance_stays_symmetric_positive_definite(sim):
+    loc, estimates = _run(sim)
+    for e in estimates[::10]:
+        np.testing.assert_allclose(e.covariance, e.covariance.T, atol=1e-15)
+        assert np.all(np.linalg.eigvalsh(e.covariance) > 0)
+    assert np.all(np.linalg.eigvalsh(loc.filter.P) > 0)
+
+
+def test_a_wrong_tag_association_is_rejected_by_the_gate(sim):
+    tag = sim.world.to_map().tags[0]
+    liar = TagObservation(tag.family, tag.tag_id, tag.size, np.array([6.0, 3.0, 0.5]), tag.height,
+                          np.diag([0.02**2, 0.02**2, math.radians(2) ** 2]))
+    frames = [dataclasses.replace(f, tags=f.tags + (liar,)) for f in sim.noisy]
+    _, estimates = _run(sim, frames)
+    pos, _ = _errors(sim, estimates)
+    assert np.sqrt(np.mean(pos**2)) < 0.08
+    assert all(e.rejected >= 1 for e in estimates)
+
+
+def test_finds_its_pose_with_no_start_and_recovers_from_a_kidnap(sim):
+    loc, estimates = _run(sim, frames=sim.noisy[:300], initial=None)
+    first = next(i for i, e in enumerate(estimates) if np.all(np.isfinite(e.pose)))
+    assert estimates[first].status == "relocalized"
+    assert sim.noisy[first].t - sim.noisy[0].t < 3.0
+    pos, _ = _errors(sim, estimates[first:][:1])
+    assert pos[0] < 0.3
+    # kidnap where slots are in view: the filter now believes it is 10 m away
+    k = next(i for i in range(300, len(sim.noisy)) if all(
+        len(f.slots) >= 2 for f in sim.noisy[i : i + 20]))
+    estimates += [loc.step(f) for f in sim.noisy[300:k]]
+    loc.filter.x[:2] += [10.0, 0.0]
+    after = [loc.step(f) for f in sim.noisy[k:]]
+    pos, _ = _errors(sim, [*estimates, *after])
+    assert pos[k] > 9
+    back = next(i for i in range(k, len(pos)) if pos[i] < 0.3)
+    assert sim.noisy[back].t - sim.noisy[k].t < 3.0
+    assert any(e.status == "relocalized" for e in after)
+
+
+def test_markings_alone_keep_it_on_track(sim):
+    _, estimates = _run(sim, use_slots=False, use_tags=False)
+    pos, _ = _errors(sim, estimates)
+    assert np.sqrt(np.mean(pos**2)) < 0.2
+
+
+def test_time_going_backwards_is_refused(sim):
+    loc, _ = _run(sim, frames=sim.noisy[:5])
+    with pytest.raises(DriveError, match="time went back"):
+        loc.step(FrameObservations(sim.noisy[2].t))
