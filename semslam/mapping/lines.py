@@ -64,6 +64,7 @@ class LineLandmark:
         return f + self.s_min * u, f + self.s_max * u
 
     def grow(self, mE: FloatArray) -> None:
+        """Extend the extent to cover points ``mE`` (N, 2); use LineLandmarks.grow."""
         s = self.along(mE)
         self.s_min, self.s_max = min(self.s_min, float(s.min())), max(self.s_max, float(s.max()))
 
@@ -78,7 +79,11 @@ def fit_line(points: FloatArray) -> tuple[FloatArray, float]:
 
 
 class LineLandmarks:
-    """All line landmarks of a map being built."""
+    """All line landmarks of a map being built.
+
+    Association runs for every detection, so the lines are also kept as arrays (one row
+    per line, ``_live`` masking dropped and merged ones); every change goes through the
+    methods here, which keep the rows in step with the objects."""
 
     def __init__(
         self,
@@ -94,35 +99,67 @@ class LineLandmarks:
         self.gap = gap
         self.min_support = min_support
         self.max_age = max_age
+        self._rows = np.zeros((0, 6))  # theta, d, anchor x, anchor y, s_min, s_max
+        self._live = np.zeros(0, dtype=bool)
+        self._in_graph = np.zeros(0, dtype=bool)
+
+    def _sync(self, line: LineLandmark) -> None:
+        self._rows[line.index] = (line.theta, line.d, *line.anchor, line.s_min, line.s_max)
+        self._live[line.index] = line.merged_into is None
+        self._in_graph[line.index] = line.in_graph
+
+    def grow(self, index: int, mE: FloatArray) -> None:
+        self.items[index].grow(mE)
+        self._sync(self.items[index])
+
+    def set_line(self, index: int, theta: float, d: float) -> None:
+        line = self.items[index]
+        line.theta, line.d = float(theta), float(d)
+        self._sync(line)
+
+    def join_graph(self, index: int) -> None:
+        self.items[index].in_graph = True
+        self._sync(self.items[index])
+
+    def merge(self, keep: int, drop: int) -> None:
+        """``drop`` is the same painted line as ``keep``: extents joined, drop retired."""
+        self.grow(keep, np.array(self.items[drop].end_points()))
+        self.items[drop].merged_into = keep
+        self._sync(self.items[drop])
+
+    def near(self, point: FloatArray, radius: float) -> FloatArray:
+        """Indices of graph lines whose segment passes within ``radius`` of ``point``."""
+        rows = self._rows
+        n = np.column_stack([np.cos(rows[:, 0]), np.sin(rows[:, 0])])
+        u = np.column_stack([-n[:, 1], n[:, 0]])
+        foot = rows[:, 2:4] + rows[:, 1:2] * n
+        s = np.clip(np.einsum("lk,lk->l", point - foot, u), rows[:, 4], rows[:, 5])
+        closest = foot + s[:, None] * u
+        close = np.hypot(*(closest - point).T) < radius
+        return np.flatnonzero(close & self._live & self._in_graph)
 
     # ------------------------------------------------------------------ association
     def candidates(self, mE: FloatArray) -> list[tuple[int, float]]:
         """Lines a detection with map end points ``mE`` (2, 2) may belong to, with the mean
         distance of its end points from each, nearest first."""
-        live = [line for line in self.items if line.merged_into is None]
-        if not live:
-            return []
-        theta = np.array([line.theta for line in live])
-        d = np.array([line.d for line in live])
-        anchor = np.array([line.anchor for line in live])
-        lo = np.array([line.s_min for line in live]) - self.gap
-        hi = np.array([line.s_max for line in live]) + self.gap
-        n = np.column_stack([np.cos(theta), np.sin(theta)])
-        u = np.column_stack([-n[:, 1], n[:, 0]])
         seg = mE[1] - mE[0]
         length = float(np.linalg.norm(seg))
-        if length < 1e-9:
+        if length < 1e-9 or not self._live.any():
             return []
+        rows = self._rows
+        n = np.column_stack([np.cos(rows[:, 0]), np.sin(rows[:, 0])])
+        u = np.column_stack([-n[:, 1], n[:, 0]])
         parallel = np.abs(n @ (seg / length)) < self.sin_tolerance
-        across = np.abs(np.einsum("lk,elk->el", n, mE[:, None, :] - anchor[None]) - d)  # (2, L)
-        foot = anchor + d[:, None] * n
-        s = np.einsum("lk,elk->el", u, mE[:, None, :] - foot[None])
+        across = np.abs(((mE[:, None, :] - rows[None, :, 2:4]) * n).sum(-1) - rows[:, 1])
+        foot = rows[:, 2:4] + rows[:, 1:2] * n
+        s = ((mE[:, None, :] - foot[None]) * u).sum(-1)  # (2, L) along each line
+        lo, hi = rows[:, 4] - self.gap, rows[:, 5] + self.gap
         overlap = (s.max(axis=0) >= lo) & (s.min(axis=0) <= hi)
-        ok = parallel & (across.max(axis=0) < self.distance_gate) & overlap
+        ok = self._live & parallel & (across.max(axis=0) < self.distance_gate) & overlap
         hits = np.flatnonzero(ok)
         cost = across.mean(axis=0)[hits]
         order = np.argsort(cost)
-        return [(live[hits[i]].index, float(cost[i])) for i in order]
+        return [(int(hits[i]), float(cost[i])) for i in order]
 
     def start(self, mE: FloatArray, keyframe: int) -> LineLandmark:
         """A tentative line through one detection."""
@@ -131,6 +168,10 @@ class LineLandmarks:
         line.s_min = line.s_max = float(line.along(mE[:1])[0])
         line.grow(mE)
         self.items.append(line)
+        self._rows = np.vstack([self._rows, np.zeros((1, 6))])
+        self._live = np.append(self._live, True)
+        self._in_graph = np.append(self._in_graph, False)
+        self._sync(line)
         return line
 
     def refit(self, index: int, map_points: FloatArray) -> None:
@@ -142,18 +183,15 @@ class LineLandmarks:
         line.anchor, line.theta, line.d = anchor, math.remainder(theta, 2 * math.pi), 0.0
         s = line.along(map_points)
         line.s_min, line.s_max = float(s.min()), float(s.max())
+        self._sync(line)
 
     def expire(self, keyframe: int) -> list[LineLandmark]:
         """Forget tentative lines that waited too long; returns them."""
-        gone = [
-            line
-            for line in self.items
-            if not line.in_graph
-            and line.merged_into is None
-            and keyframe - line.created > self.max_age
-        ]
+        waiting = np.flatnonzero(self._live & ~self._in_graph)
+        gone = [self.items[i] for i in waiting if keyframe - self.items[i].created > self.max_age]
         for line in gone:
             line.merged_into = -1  # dropped: a false or passing detection
+            self._sync(line)
         return gone
 
     def resolve(self, index: int) -> int:
@@ -164,11 +202,7 @@ class LineLandmarks:
     def duplicates(self, near: FloatArray, radius: float) -> list[tuple[int, int]]:
         """Pairs (keep, drop) of graph lines within ``radius`` of ``near`` that are one line:
         parallel, each one's ends on the other, extents overlapping."""
-        live = [
-            line
-            for line in self.items
-            if line.in_graph and line.merged_into is None and self._near(line, near, radius)
-        ]
+        live = [self.items[i] for i in self.near(near, radius)]
         pairs = []
         taken: set[int] = set()
         for i, a in enumerate(live):
@@ -187,10 +221,3 @@ class LineLandmarks:
                 pairs.append((keep.index, drop.index))
                 taken.update((a.index, b.index))
         return pairs
-
-    @staticmethod
-    def _near(line: LineLandmark, point: FloatArray, radius: float) -> bool:
-        a, b = line.end_points()
-        ab = b - a
-        t = np.clip((point - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-        return float(np.linalg.norm(a + t * ab - point)) < radius

@@ -296,14 +296,14 @@ class Mapper:
         line = self.lines.items[candidates[0][0]]
         line.detections.append((k, vE, obs.width, obs.confidence))
         if line.in_graph:
-            line.grow(mE)
+            self.lines.grow(line.index, mE)
             self._add_marking_factor(line, k, vE, obs.confidence)
             return
         points = np.vstack([transform_points(self.keyframe_poses[j], e)
                             for j, e, _, _ in line.detections])
         self.lines.refit(line.index, points)
         if len(line.detections) >= self.cfg.marking_min_support and self.use_graph:
-            line.in_graph = True
+            self.lines.join_graph(line.index)
             self.graph.add_vector(L(line.index), np.array([line.theta, line.d]))
             for j, e, _, confidence in line.detections:
                 self._add_marking_factor(line, j, e, confidence)
@@ -460,9 +460,13 @@ class Mapper:
                 s.index, np.array([g.point(C(4 * s.index + c)) for c in range(4)])
             )
         here = self.keyframe_poses[-1][:2]
-        for line in self.lines.items:
-            if line.in_graph and (everything or self.lines._near(line, here, _REFRESH_RADIUS)):
-                line.theta, line.d = map(float, g.vector(L(line.index)))
+        lines = (
+            [i for i, line in enumerate(self.lines.items) if line.in_graph]
+            if everything
+            else self.lines.near(here, _REFRESH_RADIUS)
+        )
+        for i in lines:
+            self.lines.set_line(int(i), *g.vector(L(int(i))))
 
     def _merge_duplicates(self) -> None:
         around = self.keyframe_poses[-1][:2]
@@ -482,8 +486,7 @@ class Mapper:
                     gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 5e-3])),
                 )
             )
-            a.grow(np.array(b.end_points()))
-            b.merged_into = keep
+            self.lines.merge(keep, drop)
 
     # ------------------------------------------------------------------ finish
     def finish(self) -> MappingResult:

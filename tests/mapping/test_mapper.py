@@ -107,3 +107,29 @@ def test_overlap_ratio_separates_neighbours_from_ghosts():
     assert overlap_ratio(slot, slot) == pytest.approx(1.0)
     assert overlap_ratio(slot, slot + [2.5, 0]) == pytest.approx(0.0, abs=1e-6)  # neighbour
     assert overlap_ratio(slot, slot + [1.25, 0]) == pytest.approx(0.5, abs=1e-3)  # ghost
+
+
+def _distance_to_segments(points, markings):
+    """Distance of each point (N, 2) to the nearest of the segments."""
+    a = np.array([m.a for m in markings])
+    b = np.array([m.b for m in markings])
+    ab = b - a
+    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a, ab) / (ab * ab).sum(1), 0, 1)
+    closest = a + t[..., None] * ab
+    return np.linalg.norm(points[:, None] - closest, axis=-1).min(axis=1)
+
+
+@pytest.mark.parametrize("observations", ["exact", "noisy"])
+def test_painted_lines_are_mapped_where_they_are(small, observations):
+    result = _map(small, getattr(small, observations))
+    mapped = result.map.markings
+    assert len(mapped) >= 20
+    ends = np.array([[m.a, m.b] for m in mapped]).reshape(-1, 2)
+    off = _distance_to_segments(ends, small.world.to_map().markings)
+    assert np.percentile(off, 95) < (0.05 if observations == "exact" else 0.10)
+    assert np.median([np.linalg.norm(m.b - m.a) for m in mapped]) > 0.5
+
+
+def test_odometry_only_maps_lines_by_merging_placed_detections(small):
+    result = _map(small, small.exact, optimizer="none")
+    assert len(result.map.markings) >= 20
