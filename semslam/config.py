@@ -204,6 +204,10 @@ class LocalizationConfig(_Section):
         10.0, gt=0, description="map landmark covariance multiplier: a map error is the same "
         "at every frame that sees the landmark, so it must not average out like sensor noise",
     )
+    map_floor_scale: float = Field(
+        2.0, ge=0, description="the position covariance never drops below this times the "
+        "associated map corners' covariance (0: off)",
+    )
     id_confidence_high: float = Field(
         0.8, ge=0, le=1, description="label confidence from which a slot is looked up by ID"
     )

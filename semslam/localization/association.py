@@ -123,15 +123,6 @@ class LocalMap:
             else:
                 out.rejected["tag"] += 1
 
-    def _slot_measurement(self, obs, j: int, pose: FloatArray) -> PointMeasurement:
-        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
-        Rv = rotation(pose[2]).T
-        R = np.eye(8) * sigma**2
-        scale = self.cfg.map_covariance_scale
-        for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
-            R[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += scale * Rv @ self.corner_cov[j, k] @ Rv.T
-        return PointMeasurement(np.asarray(obs.vCorners, float).ravel(), R, self.corners[j])
-
     def _slots(self, frame, pose, P, out: Associations) -> None:
         if self._slot_tree is None:
             return
@@ -159,21 +150,40 @@ class LocalMap:
                 used.add(best[1])
 
     def _best(self, obs, candidates, pose, P, used, ratio: bool):
-        scored = []
-        for j in candidates:
-            if j in used:
-                continue
-            m = self._slot_measurement(obs, j, pose)
-            scored.append((_d2(m, pose, P), j, m))
-        if not scored:
+        """The candidate slot nearest in Mahalanobis distance (all candidates at once), if
+        it passes the gate and, with ``ratio``, the second-nearest test."""
+        J = np.array([j for j in candidates if j not in used], dtype=int)
+        if not len(J):
             return None
-        scored.sort(key=lambda s: s[0])
-        d2, j, m = scored[0]
-        if d2 > self._slot_gate:
+        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        Rt = np.array([[c, s], [-s, c]])  # map -> vehicle rotation
+        d = self.corners[J] - pose[:2]  # (J, 4, 2)
+        predicted = d @ Rt.T
+        r = (np.asarray(obs.vCorners, float)[None] - predicted).reshape(len(J), 8)
+        H = np.zeros((len(J), 8, 3))
+        H[:, 0::2, 0], H[:, 0::2, 1] = -c, -s
+        H[:, 1::2, 0], H[:, 1::2, 1] = s, -c
+        H[:, 0::2, 2] = -s * d[..., 0] + c * d[..., 1]
+        H[:, 1::2, 2] = -c * d[..., 0] - s * d[..., 1]
+        R = np.zeros((len(J), 8, 8))
+        blocks = self.cfg.map_covariance_scale * (Rt @ self.corner_cov[J] @ Rt.T)  # (J,4,2,2)
+        for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
+            R[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
+        R += np.eye(8) * sigma**2
+        S = H @ P @ H.transpose(0, 2, 1) + R
+        d2 = np.einsum("ji,ji->j", r, np.linalg.solve(S, r[..., None])[..., 0])
+        order = np.argsort(d2)
+        best = order[0]
+        if d2[best] > self._slot_gate:
             return None
-        if ratio and len(scored) > 1 and scored[1][0] < self.cfg.second_nearest_ratio * max(d2, 8):
+        if ratio and len(J) > 1 and d2[order[1]] < self.cfg.second_nearest_ratio * max(
+            d2[best], 8
+        ):
             return None
-        return m, j
+        j = int(J[best])
+        z = np.asarray(obs.vCorners, float).ravel()
+        return PointMeasurement(z, R[best], self.corners[j]), j
 
     def _accept(self, out: Associations, kind: str, measurement, landmark: int,
                 observations: int = 1) -> None:

@@ -8,10 +8,11 @@ Per frame (observations in the vehicle frame, time ``t``):
 3. all associated measurements are stacked into one update (EKF or sigma points) and the
    whole frame is dropped if its normalised innovation exceeds the frame gate (Houben);
 4. health: ``tracking`` when an update was applied, ``coasting`` when nothing was
-   applied, ``lost`` when the position uncertainty exceeds its limit or several frames in a
-   row had at least two observations of which none could be used; ``relocalized`` on the frame the pose
-   came from global relocalization (:mod:`.relocalize`: tags, or several confidently read
-   slot IDs that agree);
+   applied, ``lost`` when the position uncertainty exceeds its limit or several frames in
+   a row had at least two observations of which none could be used; ``relocalized`` on
+   the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
+   several confidently read slot IDs that agree); the position covariance is floored at
+   the associated map landmarks' own covariance (map errors do not average out);
 5. recovery: while lost, and every ``check_every`` frames while tracking, the frame is
    relocalized globally; a global pose that contradicts the filter (outside the gate) twice
    in a row, or any global pose while lost, resets the filter there. So a wrong start, a
@@ -126,6 +127,7 @@ class Localizer:
             innovation = self.filter.innovation(measurements, R, self.cfg.update)
             if innovation.nis <= self._frame_gate(len(z)):
                 self.filter.apply(innovation)
+                self._floor_to_map(assoc)
                 applied = assoc.count
             else:
                 rejected += assoc.count
@@ -159,6 +161,20 @@ class Localizer:
             f.predict(t - self.t)
             self._odometry_pose = ctrv_predict(self._odometry_pose, t - self.t)
         self.t = t
+
+    def _floor_to_map(self, assoc) -> None:
+        """The pose cannot be known better than the map it was measured against: map
+        errors are shared by every frame that sees the same landmarks, so they do not
+        average out. The position covariance is raised (in the PSD sense) to the mean
+        covariance of the associated slot corners times ``map_floor_scale``."""
+        slots = [i for i, k in zip(assoc.landmarks, assoc.kinds, strict=True) if k == "slot"]
+        if not slots or self.cfg.map_floor_scale <= 0:
+            return
+        floor = self.cfg.map_floor_scale * self.local_map.corner_cov[slots].mean(axis=(0, 1))
+        P = self.filter.P
+        gap = floor - P[:2, :2]
+        w, V = np.linalg.eigh(0.5 * (gap + gap.T))
+        P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
 
     def _frame_gate(self, dof: int) -> float:
         if dof not in self._frame_gates:

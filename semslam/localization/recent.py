@@ -7,11 +7,11 @@ frames of a time window with their dead-reckoned poses (in an arbitrary odometry
 ``o``), and :meth:`RecentFrames.merged` returns one :class:`FrameObservations` in the
 current vehicle frame where
 
-- observations of the same slot (centres within ``merge_distance``) become one slot with
-  averaged corners and the label with the largest summed confidence; its confidence is
-  the best confidence of a reading of that label times the winner's share of all summed
-  confidences (a misread among several right readings loses, a split vote is not
-  confident, and one physical slot never counts as several agreeing slots);
+- observations of the same slot (centres within ``merge_distance``, single-link) become one
+  slot with averaged corners and the label with the largest summed confidence; its
+  confidence is the best confidence of a reading of that label times the winner's share
+  of all summed confidences (a misread among several right readings loses, a split vote
+  is not confident, and one physical slot never counts as several agreeing slots);
 - with three or more frames remembered, a slot seen only once is dropped (false
   detections come and go from frame to frame; real slots stay in view);
 - the most recent observation of each tag is kept.
@@ -23,9 +23,12 @@ from collections import deque
 from dataclasses import replace
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
-from semslam.geometry import FloatArray, between, compose, rotation, transform_points
-from semslam.types import FrameObservations, SlotObservation, TagObservation
+from semslam.geometry import FloatArray, between, compose, rotation
+from semslam.types import FrameObservations, TagObservation
 
 
 class RecentFrames:
@@ -34,10 +37,11 @@ class RecentFrames:
     def __init__(self, window: float = 2.0, merge_distance: float = 0.7) -> None:
         self.window = window
         self.merge_distance = merge_distance
-        self._frames: deque[tuple[FloatArray, FrameObservations]] = deque()
+        self._frames: deque[tuple[FloatArray, FrameObservations, FloatArray]] = deque()
 
     def add(self, oTv: FloatArray, frame: FrameObservations) -> None:
-        self._frames.append((np.asarray(oTv, dtype=float).copy(), frame))
+        corners = np.array([s.vCorners for s in frame.slots], dtype=float).reshape(-1, 4, 2)
+        self._frames.append((np.asarray(oTv, dtype=float).copy(), frame, corners))
         while self._frames and frame.t - self._frames[0][1].t > self.window:
             self._frames.popleft()
 
@@ -48,41 +52,36 @@ class RecentFrames:
         """All remembered observations in the vehicle frame of the newest frame."""
         if not self._frames:
             return None
-        oTnow, newest = self._frames[-1]
-        slots: list[tuple[FloatArray, SlotObservation]] = []
-        tags: dict[tuple, TagObservation] = {}
-        for oTv, frame in self._frames:
+        oTnow, newest, _ = self._frames[-1]
+        corners, slots, tags = [], [], {}
+        for oTv, frame, frame_corners in self._frames:
             nowTv = between(oTnow, oTv)
-            for s in frame.slots:
-                corners = transform_points(nowTv, s.vCorners)
-                slots.append((corners, replace(s, vCorners=corners)))
             R = rotation(nowTv[2])
+            corners.append(frame_corners @ R.T + nowTv[:2])
+            slots.extend(frame.slots)
             for tag in frame.tags:
-                cov = np.array(tag.covariance, dtype=float)
-                cov[:2, :2] = R @ cov[:2, :2] @ R.T
-                tags[(tag.family, tag.tag_id)] = replace(
-                    tag, vTt=compose(nowTv, tag.vTt), covariance=cov
-                )
+                tags[(tag.family, tag.tag_id)] = (nowTv, R, tag)
         return FrameObservations(
-            newest.t, tuple(self._merge_slots(slots)), tuple(tags.values()), ()
+            newest.t,
+            tuple(self._merge_slots(np.concatenate(corners), slots)),
+            tuple(_moved_tag(*v) for v in tags.values()),
+            (),
         )
 
-    def _merge_slots(self, slots: list[tuple[FloatArray, SlotObservation]]):
-        groups: list[list[SlotObservation]] = []
-        centres: list[FloatArray] = []
-        for corners, s in slots:
-            c = corners.mean(axis=0)
-            for i, g in enumerate(centres):
-                if np.hypot(*(c - g)) < self.merge_distance:
-                    groups[i].append(s)
-                    break
-            else:
-                groups.append([s])
-                centres.append(c)
-        confirm = len(self._frames) >= 3  # false detections are independent from frame to frame
-        for group in groups:
-            if confirm and len(group) < 2:
+    def _merge_slots(self, corners: FloatArray, slots: list):
+        if not slots:
+            return
+        centres = corners.mean(axis=1)
+        pairs = cKDTree(centres).query_pairs(self.merge_distance, output_type="ndarray")
+        n = len(slots)
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        _, group_of = connected_components(graph, directed=False)
+        confirm = len(self._frames) >= 3  # false detections are independent frame to frame
+        for g in np.unique(group_of):
+            members = np.flatnonzero(group_of == g)
+            if confirm and len(members) < 2:
                 continue
+            group = [slots[i] for i in members]
             votes: dict[str, float] = {}
             for s in group:
                 if s.label is not None:
@@ -94,8 +93,14 @@ class RecentFrames:
                 confidence = best * votes[label] / sum(votes.values())
             yield replace(
                 group[-1],
-                vCorners=np.mean([s.vCorners for s in group], axis=0),
+                vCorners=corners[members].mean(axis=0),
                 label=label,
                 label_confidence=float(confidence),
                 confidence=float(np.mean([s.confidence for s in group])),
             )
+
+
+def _moved_tag(nowTv: FloatArray, R: FloatArray, tag: TagObservation) -> TagObservation:
+    cov = np.array(tag.covariance, dtype=float)
+    cov[:2, :2] = R @ cov[:2, :2] @ R.T
+    return replace(tag, vTt=compose(nowTv, tag.vTt), covariance=cov)
