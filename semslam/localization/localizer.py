@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2
@@ -113,6 +113,12 @@ class Localizer:
         """Process one frame; frames must come in time order."""
         if self.t is not None and frame.t < self.t:
             raise DriveError(f"frame at {frame.t:.3f} s comes after {self.t:.3f} s: time went back")
+        if not (self.cfg.use_slots and self.cfg.use_tags):  # switched-off sensors: unseen
+            frame = replace(
+                frame,
+                slots=frame.slots if self.cfg.use_slots else (),
+                tags=frame.tags if self.cfg.use_tags else (),
+            )
         self._advance(frame.t)
         self._frames += 1
         self.recent.add(self._odometry_pose[:3], frame)
@@ -166,11 +172,16 @@ class Localizer:
         """The pose cannot be known better than the map it was measured against: map
         errors are shared by every frame that sees the same landmarks, so they do not
         average out. The position covariance is raised (in the PSD sense) to the mean
-        covariance of the associated slot corners times ``map_floor_scale``."""
+        covariance of the associated slot corners (or, with markings only, the configured
+        marking uncertainty) times ``map_floor_scale``."""
         slots = [i for i, k in zip(assoc.landmarks, assoc.kinds, strict=True) if k == "slot"]
-        if not slots or self.cfg.map_floor_scale <= 0:
+        if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
-        floor = self.cfg.map_floor_scale * self.local_map.corner_cov[slots].mean(axis=(0, 1))
+        if slots:
+            floor = self.local_map.corner_cov[slots].mean(axis=(0, 1))
+        else:  # markings only: maps keep no covariance for them, the configured one
+            floor = np.eye(2) * self.cfg.marking_map_sigma**2
+        floor = self.cfg.map_floor_scale * floor
         P = self.filter.P
         gap = floor - P[:2, :2]
         w, V = np.linalg.eigh(0.5 * (gap + gap.T))
