@@ -215,3 +215,32 @@ def test_optimize_solves_a_small_g2o_graph_and_refuses_a_broken_one(tmp_path):
     graph.write_text("VERTEX_SE2 0 0 0\n")
     result = _run("optimize", graph, "-o", out)
     assert result.exit_code == 2 and "line 1" in result.stderr
+
+
+def test_localize_against_the_true_map_writes_tum_and_track_and_evaluates(small_drive, tmp_path):
+    traj = tmp_path / "traj.tum"
+    result = _run("localize", small_drive, "--map", small_drive / "world.json", "-o", traj,
+                  "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert traj.stat().st_size > 0 and traj.with_suffix(".csv").stat().st_size > 0
+    result = _run("evaluate", "trajectory", traj, "--truth", small_drive / "groundtruth.tum",
+                  "--map", small_drive / "world.json", "--json")
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(result.stdout)
+    assert metrics["ate_rmse_m"] < 0.1 and metrics["frames_lost"] == 0
+    assert 0.5 < metrics["nees_mean"] < 10
+    auto = _run("localize", small_drive, "--map", small_drive / "world.json", "-o",
+                tmp_path / "auto.tum", "--init", "auto", "--update", "sigma", "--no-progress")
+    assert auto.exit_code == 0, auto.output
+
+
+def test_localize_refuses_a_broken_map_and_a_bad_init(small_drive, tmp_path):
+    broken = tmp_path / "map.json"
+    broken.write_text((small_drive / "world.json").read_text()[:300])
+    result = _run("localize", small_drive, "--map", broken, "-o", tmp_path / "t.tum")
+    assert result.exit_code == 2
+    assert "map.json" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    result = _run("localize", small_drive, "--map", small_drive / "world.json", "-o",
+                  tmp_path / "t.tum", "--init", "1,2")
+    assert result.exit_code == 2 and "--init" in result.stderr
+    assert not (tmp_path / "t.tum").exists()
