@@ -228,8 +228,10 @@ class LocalizationConfig(_Section):
     )
     marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
     marking_clamp_reach: float = Field(
-        0.3, ge=0, description="m: a detection end this far past a map marking's end is "
-        "clamped to it (Houben); farther, the map's marking is taken as incomplete",
+        0.0, ge=0, description="m: a detection end this far past a map marking's end is "
+        "clamped to it (Houben); farther, the map's marking is taken as incomplete. 0 (no "
+        "clamping) for maps built by semslam, whose line ends are where the view clipped "
+        "them, not where the paint ends; a surveyed map can use 0.3",
     )
     marking_max_angle_deg: float = Field(10.0, gt=0, description="marking association angle")
     use_slots: bool = Field(True, description="update with slot corners")

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from semslam.config import LocalizationConfig
-from semslam.geometry import FloatArray, rotation, transform_points
+from semslam.geometry import FloatArray, rotation
 from semslam.localization.measurements import (
     MarkingMeasurement,
     PointMeasurement,
@@ -124,66 +124,71 @@ class LocalMap:
                 out.rejected["tag"] += 1
 
     def _slots(self, frame, pose, P, out: Associations) -> None:
-        if self._slot_tree is None:
+        """All (observation, nearby map slot) distances at once, then per observation: the
+        slot of its confident label if that passes the gate, else the nearest slot by
+        Mahalanobis distance if it passes the gate and the second-nearest test."""
+        if self._slot_tree is None or not frame.slots:
             return
-        used: set[int] = set()
-        for obs in frame.slots:
-            confident = (
-                obs.label is not None
-                and obs.label_confidence >= self.cfg.id_confidence_high
-                and obs.label in self.by_label
-            )
-            if confident:
-                best = self._best(obs, self.by_label[obs.label], pose, P, used, ratio=False)
-                if best is not None:
-                    self._accept(out, "slot", *best)
-                    used.add(best[1])
-                    continue
-                out.label_conflicts += 1
-            centre = transform_points(pose, np.asarray(obs.vCorners).mean(axis=0)[None, :])[0]
-            near = self._slot_tree.query_ball_point(centre, self.cfg.search_radius)
-            best = self._best(obs, near, pose, P, used, ratio=True)
-            if best is None:
-                out.rejected["slot"] += 1
-            else:
-                self._accept(out, "slot", *best)
-                used.add(best[1])
-
-    def _best(self, obs, candidates, pose, P, used, ratio: bool):
-        """The candidate slot nearest in Mahalanobis distance (all candidates at once), if
-        it passes the gate and, with ``ratio``, the second-nearest test."""
-        J = np.array([j for j in candidates if j not in used], dtype=int)
+        V = np.array([o.vCorners for o in frame.slots], dtype=float)  # (O, 4, 2)
+        reach = self.cfg.search_radius + float(np.abs(V).max()) + 3.0
+        J = np.array(self._slot_tree.query_ball_point(pose[:2], reach), dtype=int)
         if not len(J):
-            return None
-        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
+            out.rejected["slot"] += len(V)
+            return
         c, s = math.cos(pose[2]), math.sin(pose[2])
         Rt = np.array([[c, s], [-s, c]])  # map -> vehicle rotation
-        d = self.corners[J] - pose[:2]  # (J, 4, 2)
-        predicted = d @ Rt.T
-        r = (np.asarray(obs.vCorners, float)[None] - predicted).reshape(len(J), 8)
+        d = self.corners[J] - pose[:2]  # (L, 4, 2)
+        predicted = (d @ Rt.T).reshape(len(J), 8)
         H = np.zeros((len(J), 8, 3))
         H[:, 0::2, 0], H[:, 0::2, 1] = -c, -s
         H[:, 1::2, 0], H[:, 1::2, 1] = s, -c
         H[:, 0::2, 2] = -s * d[..., 0] + c * d[..., 1]
         H[:, 1::2, 2] = -c * d[..., 0] - s * d[..., 1]
-        R = np.zeros((len(J), 8, 8))
-        blocks = self.cfg.map_covariance_scale * (Rt @ self.corner_cov[J] @ Rt.T)  # (J,4,2,2)
+        Rmap = np.zeros((len(J), 8, 8))
+        blocks = self.cfg.map_covariance_scale * (Rt @ self.corner_cov[J] @ Rt.T)  # (L,4,2,2)
         for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
-            R[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
-        R += np.eye(8) * sigma**2
-        S = H @ P @ H.transpose(0, 2, 1) + R
-        d2 = np.einsum("ji,ji->j", r, np.linalg.solve(S, r[..., None])[..., 0])
-        order = np.argsort(d2)
-        best = order[0]
-        if d2[best] > self._slot_gate:
-            return None
-        if ratio and len(J) > 1 and d2[order[1]] < self.cfg.second_nearest_ratio * max(
-            d2[best], 8
-        ):
-            return None
-        j = int(J[best])
-        z = np.asarray(obs.vCorners, float).ravel()
-        return PointMeasurement(z, R[best], self.corners[j]), j
+            Rmap[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
+        base = H @ P @ H.transpose(0, 2, 1) + Rmap  # (L, 8, 8)
+        sigma = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min)
+                          for o in frame.slots])
+        S = base[None] + (sigma**2)[:, None, None, None] * np.eye(8)  # (O, L, 8, 8)
+        r = V.reshape(len(V), 1, 8) - predicted[None]  # (O, L, 8)
+        d2 = np.einsum("oli,oli->ol", r, np.linalg.solve(S, r[..., None])[..., 0])
+        centres = (V.mean(axis=1) @ Rt) + pose[:2]  # observed centres in the map
+        near = np.linalg.norm(
+            self.corners[J].mean(axis=1)[None] - centres[:, None], axis=-1
+        ) < self.cfg.search_radius  # (O, L)
+        labels = np.array([self.slots[j].label for j in J], dtype=object)
+        used = np.zeros(len(J), dtype=bool)
+        for o, obs in enumerate(frame.slots):
+            chosen = None
+            if (
+                obs.label is not None
+                and obs.label_confidence >= self.cfg.id_confidence_high
+                and obs.label in self.by_label
+            ):
+                mine = np.flatnonzero((labels == obs.label) & ~used)
+                if len(mine) and d2[o, mine].min() <= self._slot_gate:
+                    chosen = int(mine[np.argmin(d2[o, mine])])
+                else:
+                    out.label_conflicts += 1
+            if chosen is None:
+                cand = np.flatnonzero(near[o] & ~used)
+                if len(cand):
+                    order = cand[np.argsort(d2[o, cand])]
+                    best = d2[o, order[0]]
+                    second = d2[o, order[1]] if len(order) > 1 else np.inf
+                    if best <= self._slot_gate and second >= self.cfg.second_nearest_ratio * max(
+                        best, 8
+                    ):
+                        chosen = int(order[0])
+            if chosen is None:
+                out.rejected["slot"] += 1
+                continue
+            used[chosen] = True
+            R = Rmap[chosen] + np.eye(8) * sigma[o] ** 2
+            m = PointMeasurement(V[o].ravel(), R, self.corners[J[chosen]])
+            self._accept(out, "slot", m, int(J[chosen]))
 
     def _accept(self, out: Associations, kind: str, measurement, landmark: int,
                 observations: int = 1) -> None:
@@ -209,13 +214,12 @@ class LocalMap:
         c, s = math.cos(pose[2]), math.sin(pose[2])
         Rm = np.array([[c, -s], [s, c]])
         mE = vE @ Rm.T + pose[:2]  # (D, 2, 2) map frame
-        near = self._marking_tree.query_ball_point(
-            mE.mean(axis=1), length / 2 + cfg.search_radius / 2
-        )
-        det = np.concatenate([np.full(len(n), i) for i, n in enumerate(near)]).astype(int)
-        own = self._marking_owner[np.concatenate(near).astype(int)] if len(det) else det
-        pairs = np.unique(det * len(self.markings) + own)
-        det, own = pairs // len(self.markings), pairs % len(self.markings)
+        reach = float(np.abs(vE).max()) + cfg.search_radius / 2 + _MARKING_SAMPLE
+        local = np.unique(
+            self._marking_owner[self._marking_tree.query_ball_point(pose[:2], reach)]
+        )  # every (detection, local marking) pair is a candidate; the tests below sort them
+        det = np.repeat(np.arange(len(vE)), len(local))
+        own = np.tile(local, len(vE))
         a, b = self.marking_a[own], self.marking_b[own]
         L = np.maximum(np.linalg.norm(b - a, axis=1), 1e-9)
         u = (b - a) / L[:, None]
@@ -262,11 +266,16 @@ class LocalMap:
             math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
             reach=cfg.marking_clamp_reach,
         )
-        # gate each winner again with its clamped rows
-        Hm, rm = m.jacobian(pose), m.residual(m.predict(pose)[0])
+        # gate again the winners that got clamped rows (the others passed with these rows)
+        clamped = m.clamped.reshape(-1, 2).any(axis=1)
+        if clamped.any():
+            Hm, rm = m.jacobian(pose), m.residual(m.predict(pose)[0])
         bounds = np.r_[m.rows[0::2], len(m.z)]
         good = []
         for i in range(len(w)):
+            if not clamped[i]:
+                good.append(i)
+                continue
             sl = slice(bounds[i], bounds[i + 1])
             Sb = Hm[sl] @ P @ Hm[sl].T + m.R[sl, sl]
             if rm[sl] @ np.linalg.solve(Sb, rm[sl]) <= self._marking_gates[sl.stop - sl.start]:

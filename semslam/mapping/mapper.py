@@ -673,6 +673,10 @@ class Mapper:
             if len(detections) < self.cfg.marking_min_support:
                 continue
             points = np.vstack([transform_points(poses[k], e) for k, e, _, _ in detections])
+            keyframes = len({k for k, _, _, _ in detections})
+            spread = float(np.sqrt(np.mean(line.across(points) ** 2)))
+            if keyframes < 3 or spread > 2 * self.cfg.marking_sigma:
+                continue  # seen once, or its detections do not lie on one line: not a line
             s = line.along(points)
             a = line.foot() + float(s.min()) * line.direction
             b = line.foot() + float(s.max()) * line.direction
