@@ -47,6 +47,8 @@ class Associations:
     measurements: list = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)  # "slot" | "tag" | "marking", per measurement
     landmarks: list[int] = field(default_factory=list)  # index into the map's list of that kind
+    slots: list[int] = field(default_factory=list)  # associated map slots (one stacked
+    # measurement holds all their corners; its landmark is -1)
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     label_conflicts: int = 0  # confident labels whose slot did not fit (misreads, or lost)
     observations: int = 0  # associated observations (all of a frame's markings are one
@@ -160,6 +162,7 @@ class LocalMap:
         ) < self.cfg.search_radius  # (O, L)
         labels = np.array([self.slots[j].label for j in J], dtype=object)
         used = np.zeros(len(J), dtype=bool)
+        accepted: list[tuple[int, int]] = []  # (observation, local slot)
         for o, obs in enumerate(frame.slots):
             chosen = None
             if (
@@ -186,9 +189,17 @@ class LocalMap:
                 out.rejected["slot"] += 1
                 continue
             used[chosen] = True
-            R = Rmap[chosen] + np.eye(8) * sigma[o] ** 2
-            m = PointMeasurement(V[o].ravel(), R, self.corners[J[chosen]])
-            self._accept(out, "slot", m, int(J[chosen]))
+            accepted.append((o, chosen))
+        if not accepted:
+            return
+        R = np.zeros((8 * len(accepted), 8 * len(accepted)))
+        for i, (o, j) in enumerate(accepted):  # all the frame's slots: one measurement
+            R[8 * i : 8 * i + 8, 8 * i : 8 * i + 8] = Rmap[j] + np.eye(8) * sigma[o] ** 2
+        obs_idx = [o for o, _ in accepted]
+        map_idx = [int(J[j]) for _, j in accepted]
+        m = PointMeasurement(V[obs_idx].ravel(), R, self.corners[map_idx].reshape(-1, 2))
+        out.slots.extend(map_idx)
+        self._accept(out, "slot", m, -1, observations=len(accepted))
 
     def _accept(self, out: Associations, kind: str, measurement, landmark: int,
                 observations: int = 1) -> None:

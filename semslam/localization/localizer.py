@@ -174,7 +174,7 @@ class Localizer:
         average out. The position covariance is raised (in the PSD sense) to the mean
         covariance of the associated slot corners (or, with markings only, the configured
         marking uncertainty) times ``map_floor_scale``."""
-        slots = [i for i, k in zip(assoc.landmarks, assoc.kinds, strict=True) if k == "slot"]
+        slots = assoc.slots
         if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
         if slots:
