@@ -28,3 +28,7 @@ class ConfigError(SemslamError):
 
 class SimulationError(SemslamError):
     """The simulator was asked for something it cannot build."""
+
+
+class PerceptionError(SemslamError):
+    """A detector was given input it cannot use (image type, shape, family, intrinsics)."""

@@ -1,0 +1,192 @@
+"""How uncertain a tag pose from PnP is: a covariance from range, viewing angle and the
+tag's size in pixels, calibrated on the simulator.
+
+Every term is an effective pixel error ``g(s) = sqrt(floor^2 + (knee / s)^2)`` (px;
+``s`` the square root of the tag's area in the image, px) turned into metres or
+radians by the geometry of a square seen at range ``rho`` (m) by a camera of focal
+length ``f`` (px):
+
+- range along the line of sight: ``sigma_rho^2 = (rho / s * g_range(s))^2 + (e_rho rho)^2``
+  (``e_rho``: a relative floor, what a tag printed 0.3 % too small or a focal length
+  0.3 % off would cause), plus ``(e_clip rho)^2`` for an overexposed tag (its clipped
+  white bleeds into the black square, which looks smaller: the range comes out long);
+- across it (each of the two directions):
+  ``sigma_perp^2 = (rho / f * g_bearing(s))^2 + (e_bearing rho)^2`` (``e_bearing``: an
+  angular floor, rad, what a principal point off by a fraction of a pixel causes);
+- the tag's normal tilting about its own x / y axis:
+  ``g_tilt(s) / (s * sqrt((c * s / f)^2 + sin(theta)^2))`` with ``theta`` the viewing
+  angle about that axis (foreshortening informs a turned tag, only perspective a
+  head-on one, so head-on and small tags get uncertain normals);
+- turning in its own plane: ``g_roll(s) / s``.
+
+The two IPPE solutions (:mod:`semslam.perception.tag_pose`) are a two-component
+mixture: the other one is right with probability
+``w = 1 / (1 + exp(-(a + b ln(ambiguity) + c ln(s))))`` (measured: about 0.1 % of the
+views with an ambiguity ratio below 0.1 are flipped, 5-10 % of those between 0.4 and
+0.5, more of the small ones), and the moment-matched covariance adds ``w * d d^T``
+(``d`` the pose difference). A flip turns the yaw by about twice the viewing angle, so
+even a small ``w`` widens the yaw a lot: honest on average, conservative for most.
+
+The constants below were fitted by maximum likelihood on 3,000 simulated views of a
+0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate``), keeping the
+views that become observations (:func:`semslam.perception.tags.usable`). The
+simulator's image is cleaner than a real camera's (effective corner errors of 0.03-0.2
+px) and its intrinsics are exact: for a real camera, scale every term by ``scale`` and
+set the floors (``range_rel_floor``, ``bearing_floor_rad``) from its calibration and
+the tags' print tolerance.
+
+Covariances are over ``(x, y, z, rx, ry, rz)`` of the tag in the camera frame: the
+position error (m) and the rotation error ``R_true = exp([r]x) R`` (rad, camera axes).
+:func:`vehicle_covariance` maps them to the ``(x, y, yaw)`` of a ``TagObservation``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike
+
+from semslam.geometry import FloatArray
+from semslam.perception.tag_pose import PositionVariant, TagPose
+
+
+@dataclass(frozen=True)
+class TagNoiseModel:
+    """The covariance model's constants (pixel errors in px; see the module docstring)."""
+
+    range_floor_px: float = 0.0443
+    range_knee_px2: float = 2.026
+    range_rel_floor: float = 0.0
+    clipped_range_rel: float = 0.0056
+    clipped_share: float = 0.1
+    bearing_floor_px: float = 0.0260
+    bearing_knee_px2: float = 1.741
+    bearing_floor_rad: float = 5e-6
+    tiev_bearing_floor_px: float = 0.0297
+    tiev_bearing_knee_px2: float = 1.802
+    tiev_bearing_floor_rad: float = 2e-6
+    tilt_floor_px: float = 0.0597
+    tilt_knee_px2: float = 2.954
+    tilt_perspective: float = 0.503
+    roll_floor_px: float = 0.0578
+    roll_knee_px2: float = 1.326
+    flip_logit_offset: float = 6.056
+    flip_logit_ambiguity: float = 1.792
+    flip_logit_size: float = -2.302
+    scale: float = 1.0
+
+
+def _g(floor: float, knee: float, s: float) -> float:
+    return math.sqrt(floor * floor + (knee / s) ** 2)
+
+
+def side_px(corners: ArrayLike) -> float:
+    """Square root of the area (px^2) of the (4, 2) corner quad: the tag's size in pixels."""
+    return math.sqrt(abs(cv2.contourArea(np.asarray(corners, dtype=np.float32).reshape(4, 2))))
+
+
+def flip_probability(pose: TagPose, s: float, model: TagNoiseModel = TagNoiseModel()) -> float:
+    """Probability that the other IPPE solution is the right one: logistic in the logs of
+    the ambiguity ratio and of the tag's size ``s`` (px), calibrated on the simulator."""
+    if pose.other is None or pose.ambiguity <= 0.0:
+        return 0.0
+    z = (model.flip_logit_offset + model.flip_logit_ambiguity * math.log(pose.ambiguity)
+         + model.flip_logit_size * math.log(s))
+    return 1.0 / (1.0 + math.exp(-z)) if z > -50.0 else 0.0
+
+
+def camera_covariance(
+    pose: TagPose, s: float, f: float, model: TagNoiseModel = TagNoiseModel(),
+    clipped: float = 0.0,
+) -> FloatArray:
+    """(6, 6) covariance of ``(position, rotation)`` in the camera frame (m, rad).
+
+    Args:
+        pose: the tag's pose (its ``position`` and ``rotation`` are the estimate).
+        s: the tag's size in the image, px (:func:`side_px`).
+        f: focal length, px.
+        model: the constants.
+        clipped: share of clipped (overexposed) pixels around the tag; above
+            ``model.clipped_share`` the range gets ``clipped_range_rel`` more spread.
+    """
+    p = np.asarray(pose.position, dtype=float)
+    R = np.asarray(pose.rotation, dtype=float)
+    rho = float(np.linalg.norm(p))
+    u = p / rho
+    k = model.scale
+    if pose.variant is PositionVariant.TIEV:
+        g_perp = _g(model.tiev_bearing_floor_px, model.tiev_bearing_knee_px2, s)
+        floor_perp = model.tiev_bearing_floor_rad
+    else:
+        g_perp = _g(model.bearing_floor_px, model.bearing_knee_px2, s)
+        floor_perp = model.bearing_floor_rad
+    rel_floor = math.hypot(model.range_rel_floor,
+                           model.clipped_range_rel if clipped > model.clipped_share else 0.0)
+    s_rho = k * rho * math.hypot(_g(model.range_floor_px, model.range_knee_px2, s) / s,
+                                 rel_floor)
+    s_perp = k * rho * math.hypot(g_perp / f, floor_perp)
+    cov = np.zeros((6, 6))
+    uu = np.outer(u, u)
+    cov[:3, :3] = s_rho**2 * uu + s_perp**2 * (np.eye(3) - uu)
+    # viewing angles about the tag's own x and y axes (line of sight in the tag frame)
+    v = R.T @ -u
+    theta_x = math.atan2(v[1], -v[2])
+    theta_y = math.atan2(v[0], -v[2])
+    g_tilt = k * _g(model.tilt_floor_px, model.tilt_knee_px2, s)
+    persp = (model.tilt_perspective * s / f) ** 2
+    s_x = g_tilt / (s * math.sqrt(persp + math.sin(theta_x) ** 2))
+    s_y = g_tilt / (s * math.sqrt(persp + math.sin(theta_y) ** 2))
+    s_z = k * _g(model.roll_floor_px, model.roll_knee_px2, s) / s
+    cov[3:, 3:] = R @ np.diag([s_x**2, s_y**2, s_z**2]) @ R.T
+    w = flip_probability(pose, s, model)
+    if w > 0.0 and pose.other is not None:
+        d = np.concatenate(
+            [pose.other.t - pose.best.t, cv2.Rodrigues(pose.other.R @ R.T)[0].ravel()]
+        )
+        cov += w * np.outer(d, d)
+    return 0.5 * (cov + cov.T)
+
+
+def vehicle_pose_2d(
+    position: ArrayLike, rotation: ArrayLike, T_vehicle_camera: ArrayLike
+) -> tuple[FloatArray, float]:
+    """The tag's ``vTt = (x, y, yaw)`` (yaw: heading of its outward normal) and the height
+    of its centre (m), from its camera-frame pose and the camera's extrinsics."""
+    T = np.asarray(T_vehicle_camera, dtype=float)
+    pv = T[:3, :3] @ np.asarray(position, dtype=float) + T[:3, 3]
+    nv = T[:3, :3] @ -np.asarray(rotation, dtype=float)[:, 2]
+    return np.array([pv[0], pv[1], math.atan2(nv[1], nv[0])]), float(pv[2])
+
+
+def vehicle_covariance(
+    rotation: ArrayLike, cov6: ArrayLike, T_vehicle_camera: ArrayLike
+) -> FloatArray:
+    """(3, 3) covariance of ``vTt = (x, y, yaw)`` from the (6, 6) camera-frame covariance
+    (first order: ``J cov6 J^T``)."""
+    T = np.asarray(T_vehicle_camera, dtype=float)
+    R_vc = T[:3, :3]
+    n_c = -np.asarray(rotation, dtype=float)[:, 2]
+    n_v = R_vc @ n_c
+    h2 = n_v[0] ** 2 + n_v[1] ** 2
+    if h2 < 1e-12:  # a tag lying flat has no heading
+        h2 = 1e-12
+    dyaw_dnv = np.array([-n_v[1], n_v[0], 0.0]) / h2
+    skew = np.array([[0.0, -n_c[2], n_c[1]], [n_c[2], 0.0, -n_c[0]], [-n_c[1], n_c[0], 0.0]])
+    J = np.zeros((3, 6))
+    J[:2, :3] = R_vc[:2, :]
+    J[2, 3:] = dyaw_dnv @ R_vc @ -skew
+    out = J @ np.asarray(cov6, dtype=float) @ J.T
+    return 0.5 * (out + out.T)
+
+
+__all__ = [
+    "TagNoiseModel",
+    "camera_covariance",
+    "flip_probability",
+    "side_px",
+    "vehicle_covariance",
+    "vehicle_pose_2d",
+]
