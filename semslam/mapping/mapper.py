@@ -154,6 +154,7 @@ class Mapper:
         self._label_votes: list[tuple[int, str, float]] = []  # from frames between keyframes
         self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
+        self.tag_mismatches: list[tuple] = []  # (k, tag id, family, size) refused
         self.lines = LineLandmarks(
             config.marking_angle_tolerance_deg,
             config.marking_distance_gate,
@@ -261,6 +262,11 @@ class Mapper:
         info = self.tags.setdefault(
             tag.tag_id, {"family": tag.family, "size": tag.size, "heights": [], "poses": []}
         )
+        if abs(tag.size - info["size"]) > 0.01 * info["size"] or tag.family != info["family"]:
+            # a tag of another size (or family) under the same ID: another tag, or a wrong
+            # size setting; its range would be wrong by the ratio, so it is reported, not used
+            self.tag_mismatches.append((k, tag.tag_id, str(tag.family), float(tag.size)))
+            return
         info["heights"].append(tag.height)
         info["poses"].append(compose(pose, tag.vTt))
         if not self.use_graph:
@@ -518,6 +524,7 @@ class Mapper:
             "landmarks_created": len(self.slots.items),
             "merged": sum(s.merged_into is not None for s in self.slots.items),
             "batch_iterations": iterations,
+            "tag_size_mismatches": len(self.tag_mismatches),
             "odometry_scale": round(float(self.calibration[0]), 5),
             "gyro_bias_rad_s": float(self.calibration[1]),
             "association_s": round(self._timing["association_s"], 3),

@@ -133,3 +133,16 @@ def test_painted_lines_are_mapped_where_they_are(small, observations):
 def test_odometry_only_maps_lines_by_merging_placed_detections(small):
     result = _map(small, small.exact, optimizer="none")
     assert len(result.map.markings) >= 20
+
+
+def test_a_tag_seen_with_another_size_is_reported_not_used(small):
+    seen = [i for i, f in enumerate(small.exact) if f.tags]
+    half = seen[len(seen) // 2]  # from here on every tag reports 1.5 times its size
+    frames = [
+        FrameObservations(f.t, f.slots, tuple(dataclasses.replace(t, size=t.size * 1.5)
+                                              for t in f.tags) if i > half else f.tags, f.markings)
+        for i, f in enumerate(small.exact)
+    ]
+    result = _map(small, frames)
+    assert result.statistics["tag_size_mismatches"] > 0
+    assert all(t.size == small.world.to_map().tags[0].size for t in result.map.tags)
