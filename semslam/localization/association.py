@@ -150,17 +150,24 @@ class LocalMap:
         blocks = self.cfg.map_covariance_scale * (Rt @ self.corner_cov[J] @ Rt.T)  # (L,4,2,2)
         for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
             Rmap[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
-        base = H @ P @ H.transpose(0, 2, 1) + Rmap  # (L, 8, 8)
         sigma = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min)
                           for o in frame.slots])
-        S = base[None] + (sigma**2)[:, None, None, None] * np.eye(8)  # (O, L, 8, 8)
-        r = V.reshape(len(V), 1, 8) - predicted[None]  # (O, L, 8)
-        d2 = np.einsum("oli,oli->ol", r, np.linalg.solve(S, r[..., None])[..., 0])
         centres = (V.mean(axis=1) @ Rt) + pose[:2]  # observed centres in the map
         near = np.linalg.norm(
             self.corners[J].mean(axis=1)[None] - centres[:, None], axis=-1
         ) < self.cfg.search_radius  # (O, L)
         labels = np.array([self.slots[j].label for j in J], dtype=object)
+        read = np.array([o.label for o in frame.slots], dtype=object)
+        same_label = (labels[None, :] == read[:, None]) & (read != None)[:, None]  # noqa: E711
+        # Mahalanobis distances only for the pairs that can be chosen (near, or same label)
+        po, pl = np.nonzero(near | same_label)
+        d2 = np.full((len(V), len(J)), np.inf)
+        if len(po):
+            Hp = H[pl]
+            S = Hp @ P @ Hp.transpose(0, 2, 1) + Rmap[pl]
+            S += (sigma[po] ** 2)[:, None, None] * np.eye(8)
+            r = V[po].reshape(-1, 8) - predicted[pl]
+            d2[po, pl] = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
         used = np.zeros(len(J), dtype=bool)
         accepted: list[tuple[int, int]] = []  # (observation, local slot)
         for o, obs in enumerate(frame.slots):
