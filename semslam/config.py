@@ -205,7 +205,7 @@ class LocalizationConfig(_Section):
         "at every frame that sees the landmark, so it must not average out like sensor noise",
     )
     map_floor_scale: float = Field(
-        1.0, ge=0, description="the position covariance never drops below this times the "
+        0.6, ge=0, description="the position covariance never drops below this times the "
         "associated map corners' covariance (0: off)",
     )
     id_confidence_high: float = Field(
@@ -237,6 +237,12 @@ class LocalizationConfig(_Section):
     use_slots: bool = Field(True, description="update with slot corners")
     use_tags: bool = Field(True, description="update with tags")
     use_markings: bool = Field(True, description="update with line markings")
+    markings_as_fallback: bool = Field(
+        True, description="use markings only in frames with few slot / tag associations"
+    )
+    fallback_below: int = Field(
+        2, ge=1, description="markings are used when fewer slots + tags than this associate"
+    )
     lost_position_sigma: float = Field(1.0, gt=0, description="m: beyond this the filter is lost")
     lost_rejections: int = Field(
         5, ge=1, description="frames in a row whose observations were all rejected: lost"

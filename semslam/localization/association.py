@@ -100,7 +100,9 @@ class LocalMap:
             self._tags(frame, pose, P, out)
         if self.cfg.use_slots:
             self._slots(frame, pose, P, out)
-        if self.cfg.use_markings:
+        if self.cfg.use_markings and (
+            not self.cfg.markings_as_fallback or out.count < self.cfg.fallback_below
+        ):  # Houben's lines keep the filter on track where slots and tags are scarce
             self._markings(frame, pose, P, out)
         return out
 
