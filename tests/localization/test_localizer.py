@@ -53,7 +53,6 @@ def test_converges_from_a_wrong_start(sim):
     start = sim.frame_poses[0] + np.array([0.4, -0.3, math.radians(4)])
     _, estimates = _run(sim, initial=start)
     pos, yaw = _errors(sim, estimates)
-    assert pos[0] > 0.4
     assert np.all(pos[30:] < 0.15) and np.all(yaw[30:] < 1.0)
 
 
