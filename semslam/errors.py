@@ -32,3 +32,7 @@ class SimulationError(SemslamError):
 
 class PerceptionError(SemslamError):
     """A detector was given input it cannot use (image type, shape, family, intrinsics)."""
+
+
+class MappingError(SemslamError):
+    """The mapper could not solve its factor graph (an indeterminate system)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from semslam.errors import MappingError
 from semslam.geometry import FloatArray
 
 
@@ -61,7 +62,10 @@ class Graph:
     # -- solving
     def update(self) -> None:
         """One iSAM2 step with everything added since the last one."""
-        self.isam.update(self._new_factors, self._new_values)
+        try:
+            self.isam.update(self._new_factors, self._new_values)
+        except RuntimeError as e:  # gtsam's indeterminate system: say so in one line
+            raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
 
@@ -98,7 +102,12 @@ class Graph:
                     damped.add(gtsam.JacobianFactor(
                         key, np.eye(dim) * np.sqrt(lam), np.zeros(dim), self._unit[dim]
                     ))
-                candidate = values.retract(damped.optimize())
+                try:
+                    candidate = values.retract(damped.optimize())
+                except RuntimeError as e:
+                    raise MappingError(
+                        f"the factor graph could not be solved: {_first_line(e)}"
+                    ) from None
                 new_error = self.factors.error(candidate)
                 if new_error <= error:
                     break
@@ -145,3 +154,8 @@ class Graph:
             return gtsam.Marginals(self.factors, self.estimate)
         except RuntimeError:
             return None
+
+
+def _first_line(error: Exception) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return " ".join(lines[:2]) if lines else type(error).__name__

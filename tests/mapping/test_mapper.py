@@ -146,3 +146,20 @@ def test_a_tag_seen_with_another_size_is_reported_not_used(small):
     result = _map(small, frames)
     assert result.statistics["tag_size_mismatches"] > 0
     assert all(t.size == small.world.to_map().tags[0].size for t in result.map.tags)
+
+
+def test_an_unsolvable_graph_is_a_one_line_mapping_error():
+    import gtsam
+
+    from semslam.errors import MappingError
+    from semslam.mapping.graph import Graph
+
+    X = gtsam.symbol_shorthand.X
+    graph = Graph()
+    graph.add_pose(X(0), np.zeros(3))
+    graph.add_pose(X(1), np.array([1.0, 0.0, 0.0]))  # no prior: the whole graph floats
+    graph.add_factor(gtsam.BetweenFactorPose2(
+        X(0), X(1), gtsam.Pose2(1, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    with pytest.raises(MappingError) as error:
+        graph.update()
+    assert "could not be solved" in str(error.value) and "\n" not in str(error.value)
