@@ -149,9 +149,19 @@ class Graph:
         return np.asarray(self.isam.calculateEstimateVector(key), dtype=float)
 
     def marginals(self) -> gtsam.Marginals | None:
-        """Marginal covariances at the current estimate (None if the system is singular)."""
+        """Marginal covariances at the current estimate (None if the system is singular).
+
+        gtsam's Marginals eliminate by Cholesky, which refuses a nearly indeterminate
+        system (on `large`, a slot corner whose observations all sat on the null
+        hypothesis). Every variable therefore gets a vague prior (sigma 10 m or 10 rad) in
+        the linearised graph: it changes a determined variable's covariance by about a
+        part in 10^5 and gives an undetermined one a large, honest covariance."""
+        linear = self.factors.linearize(self.estimate)
+        for key, dim in self._dims.items():
+            vague = np.eye(dim) * 0.1
+            linear.add(gtsam.JacobianFactor(key, vague, np.zeros(dim), self._unit[dim]))
         try:
-            return gtsam.Marginals(self.factors, self.estimate)
+            return gtsam.Marginals(linear, self.estimate)
         except RuntimeError:
             return None
 
