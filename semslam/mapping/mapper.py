@@ -155,6 +155,7 @@ class Mapper:
         self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
         self.tag_mismatches: list[tuple] = []  # (k, tag id, family, size) refused
+        self._marginal_fallbacks = 0  # slots whose marginal gtsam could not compute
         self.lines = LineLandmarks(
             config.marking_angle_tolerance_deg,
             config.marking_distance_gate,
@@ -525,6 +526,7 @@ class Mapper:
             "merged": sum(s.merged_into is not None for s in self.slots.items),
             "batch_iterations": iterations,
             "tag_size_mismatches": len(self.tag_mismatches),
+            "marginal_fallbacks": self._marginal_fallbacks,
             "odometry_scale": round(float(self.calibration[0]), 5),
             "gyro_bias_rad_s": float(self.calibration[1]),
             "association_s": round(self._timing["association_s"], 3),
@@ -601,8 +603,14 @@ class Mapper:
             label, confidence = landmark.best_label()
             covs = np.zeros((4, 2, 2))
             if marginals is not None:
-                for c in range(4):
-                    covs[c] = marginals.marginalCovariance(C(4 * landmark.index + c))
+                try:
+                    for c in range(4):
+                        covs[c] = marginals.marginalCovariance(C(4 * landmark.index + c))
+                except RuntimeError:  # gtsam refused this clique (ill-conditioned): the
+                    # corner noise over the accepted observations, and counted
+                    floor = self.cfg.slot_corner_sigma_min
+                    covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1)
+                    self._marginal_fallbacks += 1
             slot_of_landmark[landmark.index] = len(slots)
             slots.append(
                 Slot(
@@ -623,11 +631,14 @@ class Mapper:
         for tag_id, info in sorted(self.tags.items()):
             if self.use_graph:
                 mTt = self.graph.pose(T(tag_id))
-                cov = (
-                    marginals.marginalCovariance(T(tag_id))
-                    if marginals is not None
-                    else np.zeros((3, 3))
-                )
+                cov = np.zeros((3, 3))
+                if marginals is not None:
+                    try:
+                        cov = marginals.marginalCovariance(T(tag_id))
+                    except RuntimeError:  # as for slots: the spread of its sightings
+                        poses = np.array(info["poses"])
+                        cov = np.cov(poses.T) / len(poses) if len(poses) > 1 else cov
+                        self._marginal_fallbacks += 1
             else:
                 poses = np.array(info["poses"])
                 mTt = np.array(
