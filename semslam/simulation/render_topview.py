@@ -555,8 +555,10 @@ class TopviewRenderer:
             lo, hi = px.min(axis=1), px.max(axis=1)
             n = self.spec.size_px
             keep = (hi > -2).all(axis=1) & (lo < n + 1).all(axis=1)
-            if keep.any():
-                cv2.fillPoly(S, list(_fixed(px[keep])), self._paint_bgr, cv2.LINE_AA, _SHIFT)
+            # one fill per quad: a single fillPoly of all of them would leave the overlap
+            # at every T / L junction unpainted (even-odd rule)
+            for quad in _fixed(px[keep]):
+                cv2.fillConvexPoly(S, quad, self._paint_bgr, cv2.LINE_AA, _SHIFT)
 
     def _draw_labels(self, S: np.ndarray, P: np.ndarray, mTv: np.ndarray) -> None:
         """All nearby labels as one antialiased even-odd fill of their glyph outlines."""
