@@ -14,24 +14,18 @@ import argparse
 import json
 import math
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _common import run_semslam
 
 KEYS = ["ate_rmse_m", "ate_p95_m", "yaw_rmse_deg", "parallel_mean_m", "orthogonal_mean_m",
         "nees_mean", "frames", "frames_lost"]
 
 
-def run(args: list[str], env: dict[str, str] | None = None) -> str:
-    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
-                          text=True, env={**os.environ, **(env or {})}, check=False)
-    if proc.returncode != 0:
-        raise SystemExit(f"semslam {' '.join(args)} failed: {proc.stderr.strip()}")
-    return proc.stdout
+run = run_semslam
 
 
 def localize_and_score(drive: Path, map_path: Path, out: Path, env: dict[str, str]) -> dict:

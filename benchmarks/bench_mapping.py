@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from _common import run_semslam
 
 KEYS = ["corner_rmse_m", "corner_p95_m", "slots_true", "slots_mapped", "slots_matched",
         "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy", "tags_rmse_m"]
@@ -32,12 +32,7 @@ VARIANTS = {
 }
 
 
-def run(args: list[str], env: dict[str, str] | None = None) -> str:
-    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
-                          text=True, env={**os.environ, **(env or {})}, check=False)
-    if proc.returncode != 0:
-        raise SystemExit(f"semslam {' '.join(args)} failed: {proc.stderr.strip()}")
-    return proc.stdout
+run = run_semslam
 
 
 def map_and_score(drive: Path, out: Path, extra: list[str], env: dict[str, str]) -> dict:

@@ -43,7 +43,6 @@ import dataclasses
 import json
 import math
 import statistics
-import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -51,6 +50,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from _common import report
 
 from semslam.config import SimulationConfig
 from semslam.geometry import clip_segment, inverse_transform_points
@@ -611,14 +611,7 @@ def main() -> None:
             cv2.imwrite(
                 str(args.overlays / "markings_bev_masks.png"), montage(bev_tiles[:6], 3, tile=276)
             )
-    print(markdown(result))
-    print()
-    print("```json")
-    print(json.dumps(result, indent=2))
-    print("```")
-    if args.json is not None:
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
-    sys.stdout.flush()
+    report(markdown(result), result, args.json)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from _common import report
 from scipy import stats
 
 from semslam.config import SimulationConfig
@@ -583,13 +584,7 @@ def main() -> None:
     result["accuracy"] = accuracy_table(rows)
     result["detection_rate"] = detection_rate(rows, args.plot)
     result["nees_sweep"] = sweep_nees(rows, TagSettings())
-    print(markdown(result))
-    print()
-    print("```json")
-    print(json.dumps(result, indent=2))
-    print("```")
-    if args.json is not None:
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+    report(markdown(result), result, args.json)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # its _common
 
 from benchmarks.bench_markings import (  # noqa: E402
     SPEC,
