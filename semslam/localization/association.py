@@ -11,9 +11,10 @@ against the landmarks near where it would lie in the map; its squared Mahalanobi
   otherwise (no label, low confidence, or a confident label that does not fit: a misread)
   the nearest slot by ``d2``, accepted only inside the gate and when the second nearest is
   clearly farther (``d2_second >= ratio * max(d2_best, dof)``);
-- markings: candidates within the angle limit, the nearest by ``d2`` of Houben's marking
-  measurement (end points across the line, clamped to the marking's ends), same gate and
-  ratio test.
+- markings (Houben's fallback: only in frames where fewer than ``fallback_below`` slots
+  and tags associated): candidates within the angle limit, the nearest by ``d2`` of
+  Houben's marking measurement (end points across the line; clamped to the marking's
+  ends only when ``marking_clamp_reach`` > 0), same gate and ratio test.
 
 Each observation is used once; a slot or tag takes at most one observation per frame.
 Everything is in the map frame (metres, radians) except observations (vehicle frame).

@@ -13,9 +13,11 @@ Per frame (observations in the vehicle frame, time ``t``):
    the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
    several confidently read slot IDs that agree); the position covariance is floored at
    the associated map landmarks' own covariance (map errors do not average out);
-5. recovery: while lost, and every ``check_every`` frames while tracking, the frame is
-   relocalized globally; a global pose that contradicts the filter (outside the gate) twice
-   in a row, or any global pose while lost, resets the filter there. So a wrong start, a
+5. recovery: while lost, and every ``check_every`` frames while tracking, the last
+   seconds of frames (:mod:`.recent`) are relocalized globally; a global pose that
+   contradicts the filter (outside the gate) twice in a row, or any global pose while
+   lost, resets the filter there (once tracking has begun, a far jump backed by one tag
+   alone is refused: a moved tag must not teleport the car). So a wrong start, a
    kidnap or a divergence is repaired from the map alone, and ``--init auto`` is the same
    mechanism started in the ``initializing`` state.
 
