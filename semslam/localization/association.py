@@ -47,17 +47,10 @@ class Associations:
 
     measurements: list = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)  # "slot" | "tag" | "marking", per measurement
-    landmarks: list[int] = field(default_factory=list)  # index into the map's list of that kind
     slots: list[int] = field(default_factory=list)  # associated map slots (one stacked
-    # measurement holds all their corners; its landmark is -1)
+    # measurement holds all their corners, as one holds all the frame's markings)
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
-    label_conflicts: int = 0  # confident labels whose slot did not fit (misreads, or lost)
-    observations: int = 0  # associated observations (all of a frame's markings are one
-    # stacked measurement, landmark -1)
-
-    @property
-    def count(self) -> int:
-        return self.observations
+    count: int = 0  # associated observations
 
     @property
     def rejected_total(self) -> int:
@@ -77,7 +70,7 @@ class LocalMap:
         for i, s in enumerate(self.slots):
             if s.label is not None:
                 self.by_label.setdefault(s.label, []).append(i)
-        self.tags = {(t.family, t.tag_id): (i, t) for i, t in enumerate(semantic_map.tags)}
+        self.tags = {(t.family, t.tag_id): t for t in semantic_map.tags}
         self.markings = semantic_map.markings
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
@@ -111,10 +104,9 @@ class LocalMap:
         for obs in frame.tags:
             if np.hypot(*obs.vTt[:2]) > self.cfg.tag_range_limit:
                 continue
-            entry = self.tags.get((obs.family, obs.tag_id))
-            if entry is None:
+            tag = self.tags.get((obs.family, obs.tag_id))
+            if tag is None:
                 continue
-            index, tag = entry
             R = np.array(obs.covariance, dtype=float)
             Rv = rotation(pose[2]).T
             k = self.cfg.map_covariance_scale
@@ -122,9 +114,7 @@ class LocalMap:
             R[2, 2] += k * tag.covariance[2, 2]
             m = TagMeasurement(np.asarray(obs.vTt, float), R, np.asarray(tag.mTt, float))
             if _d2(m, pose, P) <= self._tag_gate:
-                out.measurements.append(m)
-                out.kinds.append("tag")
-                out.landmarks.append(index)
+                self._accept(out, "tag", m)
             else:
                 out.rejected["tag"] += 1
 
@@ -183,8 +173,7 @@ class LocalMap:
                 mine = np.flatnonzero((labels == obs.label) & ~used)
                 if len(mine) and d2[o, mine].min() <= self._slot_gate:
                     chosen = int(mine[np.argmin(d2[o, mine])])
-                else:
-                    out.label_conflicts += 1
+                # else: a misread (or a lost filter): the geometry decides below
             if chosen is None:
                 cand = np.flatnonzero(near[o] & ~used)
                 if len(cand):
@@ -209,14 +198,12 @@ class LocalMap:
         map_idx = [int(J[j]) for _, j in accepted]
         m = PointMeasurement(V[obs_idx].ravel(), R, self.corners[map_idx].reshape(-1, 2))
         out.slots.extend(map_idx)
-        self._accept(out, "slot", m, -1, observations=len(accepted))
+        self._accept(out, "slot", m, observations=len(accepted))
 
-    def _accept(self, out: Associations, kind: str, measurement, landmark: int,
-                observations: int = 1) -> None:
+    def _accept(self, out: Associations, kind: str, measurement, observations: int = 1) -> None:
         out.measurements.append(measurement)
         out.kinds.append(kind)
-        out.landmarks.append(landmark)
-        out.observations += observations
+        out.count += observations
 
     def _markings(self, frame, pose, P, out: Associations) -> None:
         """Houben's association, vectorised over all (detection, candidate marking) pairs of
@@ -312,7 +299,7 @@ class LocalMap:
                 math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
                 reach=cfg.marking_clamp_reach,
             )
-        self._accept(out, "marking", m, -1, observations=len(good))
+        self._accept(out, "marking", m, observations=len(good))
 
 
 def _d2(m, pose: FloatArray, P: FloatArray) -> float:

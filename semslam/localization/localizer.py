@@ -44,6 +44,8 @@ from semslam.localization.relocalize import Relocalizer
 from semslam.motion import ctrv_predict
 from semslam.types import FrameObservations, SemanticMap
 
+_PLAUSIBLE_CHI2 = float(chi2.ppf(0.99999, 3))  # a global fix this far from the filter: a jump
+
 INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
     "initializing", "tracking", "coasting", "lost", "relocalized"
 )
@@ -218,7 +220,7 @@ class Localizer:
         e = found.mTv - self.filter.pose
         e[2] = wrap_angle(e[2])
         S = found.covariance + self.filter.pose_covariance
-        return float(e @ np.linalg.solve(S, e)) <= chi2.ppf(0.99999, 3)
+        return float(e @ np.linalg.solve(S, e)) <= _PLAUSIBLE_CHI2
 
     def _reset(self, pose: FloatArray, covariance: FloatArray) -> None:
         i = max(self._next_odometry - 1, 0)

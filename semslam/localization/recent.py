@@ -45,9 +45,6 @@ class RecentFrames:
         while self._frames and frame.t - self._frames[0][1].t > self.window:
             self._frames.popleft()
 
-    def clear(self) -> None:
-        self._frames.clear()
-
     def merged(self) -> FrameObservations | None:
         """All remembered observations in the vehicle frame of the newest frame."""
         if not self._frames:

@@ -8,6 +8,7 @@ neither file; the summary says how long finding the pose took.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,8 +60,6 @@ def localize_drive(
     """Localize the drive at ``drive_folder`` in the map at ``map_path``.
 
     ``init``: "x,y,yaw", "auto", or None for the drive's declared start pose."""
-    import time
-
     from semslam.io import Drive, load_map, write_tum
     from semslam.io.track_csv import Track, write_track_csv
     from semslam.localization.localizer import Localizer

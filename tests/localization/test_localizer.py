@@ -105,3 +105,11 @@ def test_time_going_backwards_is_refused(sim):
     loc, _ = _run(sim, frames=sim.noisy[:5])
     with pytest.raises(DriveError, match="time went back"):
         loc.step(FrameObservations(sim.noisy[2].t))
+
+
+def test_a_frame_with_only_a_tag_updates_the_filter(sim):
+    frame, tag = next((f, t) for f in sim.exact for t in f.tags if np.hypot(*t.vTt[:2]) < 15)
+    only_tag = FrameObservations(frame.t, (), (tag,), ())
+    loc, _ = _run(sim, frames=[f for f in sim.noisy if f.t < frame.t])
+    estimate = loc.step(only_tag)
+    assert estimate.associated == 1 and estimate.status == "tracking"
