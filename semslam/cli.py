@@ -208,6 +208,39 @@ def tags(
     print_metrics("semslam tags", rows, False)
 
 
+@app.command()
+def detect(
+    images: Annotated[list[Path], typer.Argument(metavar="IMAGE...", help="Top-view images.")],
+    overlay: Annotated[
+        Path | None,
+        typer.Option(metavar="DIR", help="Write each image with its detections drawn."),
+    ] = None,
+    lines: Annotated[bool, typer.Option(help="Also find painted lines (Houben).")] = True,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Marking points, slots with their painted IDs, and painted lines in ps2.0 top views
+    (600 x 600 px, 10 m, car in the middle; --json: {"images": [{"image", "points",
+    "slots", "markings"}]})."""
+    from semslam.pipeline.detect import detect_files
+    from semslam.reporting import print_metrics
+
+    try:
+        result = detect_files(images, overlay, lines=lines)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    if json_output:
+        print_metrics("semslam detect", result, True)
+        return
+    rows: dict[str, object] = {}
+    for entry in result["images"]:
+        labels = ", ".join(s["label"] or "?" for s in entry["slots"]) or "-"
+        rows[entry["image"]] = (
+            f"{len(entry['points'])} points, {len(entry['slots'])} slots ({labels}), "
+            f"{len(entry['markings'])} lines"
+        )
+    print_metrics("semslam detect", rows, False)
+
+
 class RobustMode(StrEnum):
     maxmix = "maxmix"
     none = "none"
@@ -307,6 +340,68 @@ def evaluate_trajectory(
             x, y, yaw = metrics["alignment"]
             metrics["alignment"] = f"{x:.3f} m, {y:.3f} m, {yaw:.3f} deg"
     print_metrics("trajectory evaluation", metrics, json_output)
+
+
+@evaluate_app.command("detections")
+def evaluate_detections(
+    images_dir: Annotated[Path, typer.Argument(metavar="IMAGES_DIR", help="Top views.")],
+    labels_dir: Annotated[
+        Path, typer.Argument(metavar="LABELS_DIR", help="DMPR-PS labels, <image stem>.json.")
+    ],
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Marking-point and slot precision / recall with the ps2.0 metric (10 px, 30 deg)."""
+    from semslam.pipeline.detect import evaluate_detection_folder
+    from semslam.reporting import print_metrics
+
+    try:
+        metrics = evaluate_detection_folder(images_dir, labels_dir)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_metrics("detection evaluation", metrics, json_output)
+
+
+class Grade(StrEnum):
+    automotive = "automotive"
+    precise = "precise"
+
+
+@app.command()
+def accuracy(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
+    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
+                                         help="Folder for accuracy.json and accuracy_map.png.")],
+    route: Annotated[
+        Path | None, typer.Option(metavar="TRAJ.tum", help="A route to predict along.")
+    ] = None,
+    grade: Annotated[
+        Grade, typer.Option(help="Odometry / IMU grade (Hofmann).")
+    ] = Grade.automotive,
+    grid_step: Annotated[float, typer.Option(help="Grid spacing, m.")] = 1.0,
+    threshold: Annotated[float, typer.Option(help="Accuracy target, m (worst stretches).")] = 0.2,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Predicted accuracy from the map alone (Hofmann): single-frame (A^T P A)^-1 on a grid
+    and, along a route, filtered with an odometry grade; the worst stretches."""
+    from semslam.pipeline.accuracy import predicted_accuracy
+    from semslam.reporting import print_metrics
+
+    try:
+        result = predicted_accuracy(map_path, output, route, grade.value, grid_step, threshold)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    if json_output:
+        print_metrics("semslam accuracy", result, True)
+        return
+    rows: dict[str, object] = {f"grid {k}": v for k, v in result["grid"].items()}
+    if "route" in result:
+        rows.update({f"route {k}": v for k, v in result["route"].items()
+                     if k not in ("per_pose", "worst_stretches", "file")})
+        for n, s in enumerate(result["route"]["worst_stretches"]):
+            rows[f"worst stretch {n + 1}"] = (
+                f"{s['start_m']:.0f}-{s['end_m']:.0f} m, up to {s['worst_sigma_m']:.2f} m")
+    rows["written"] = ", ".join(result["files"])
+    print_metrics("semslam accuracy", rows, False)
 
 
 @app.command("dump-config")

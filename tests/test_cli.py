@@ -191,7 +191,7 @@ def test_map_refuses_missing_drive_and_unknown_observations(small_drive, tmp_pat
     result = _run("map", tmp_path / "nothing", "-o", tmp_path / "m.json")
     assert result.exit_code == 2 and "drive folder not found" in result.stderr
     result = _run("map", small_drive, "-o", tmp_path / "m.json", "--observations", "images")
-    assert result.exit_code == 2 and "perception models" in result.stderr
+    assert result.exit_code == 2 and "needs a topview or front image column" in result.stderr
     assert not (tmp_path / "m.json").exists()
 
 

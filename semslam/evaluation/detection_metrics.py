@@ -79,7 +79,8 @@ def match_points(
         return match
     d = np.linalg.norm(detected[:, None, :] - labelled[None, :, :], axis=2)
     da = _angle_diff(
-        np.asarray(detected_directions, float)[:, None], np.asarray(labelled_directions, float)[None]
+        np.asarray(detected_directions, float)[:, None],
+        np.asarray(labelled_directions, float)[None],
     )
     eligible = (d <= distance_px) & (da <= np.radians(angle_deg))
     taken = np.zeros(len(labelled), bool)
@@ -126,7 +127,9 @@ def score_image(
         angle_deg,
     )
     hit = match >= 0
-    shapes_ok = np.asarray(detected_shapes, int)[hit] == np.asarray(labelled_shapes, int)[match[hit]]
+    shapes_ok = (
+        np.asarray(detected_shapes, int)[hit] == np.asarray(labelled_shapes, int)[match[hit]]
+    )
     # slots: a detected slot hits when its entrance points matched a labelled slot's pair
     truth = {
         frozenset((int(i) - 1, int(j) - 1))

@@ -67,7 +67,7 @@ def localize_drive(
     semantic_map = load_map(map_path)
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
-    frames = load_observations(drive, observations)
+    frames = load_observations(drive, observations, config, show_progress)
     initial = drive.start_pose if init is None else parse_init(init)
     started = time.perf_counter()
     localizer = Localizer(

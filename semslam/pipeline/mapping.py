@@ -42,15 +42,17 @@ def _sibling(map_path: Path, suffix: str) -> Path:
     return map_path.with_name(map_path.stem + suffix)
 
 
-def load_observations(drive, source: str):
-    """The per-frame observations of ``drive`` from ``source``."""
+def load_observations(
+    drive, source: str, config: SemslamConfig | None = None, show_progress: bool | None = None
+):
+    """The per-frame observations of ``drive`` from ``source``: a stored set (exact,
+    noisy, cached) or, for ``images``, the detectors run on the drive's images."""
     if source not in OBSERVATION_SOURCES:
         raise DriveError(f"--observations {source}: choose one of {', '.join(OBSERVATION_SOURCES)}")
     if source == "images":
-        raise DriveError(
-            f"{drive.folder}: --observations images needs the perception models in models/, "
-            "which this version does not ship yet; use exact, noisy or cached"
-        )
+        from semslam.pipeline.perceive import perceive_drive
+
+        return perceive_drive(drive, config or SemslamConfig(), show_progress)
     return drive.observations(source)
 
 
@@ -70,7 +72,7 @@ def build_map(
 
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
-    frames = load_observations(drive, observations)
+    frames = load_observations(drive, observations, config, show_progress)
     if frames and frames[0].t < odometry.t[0] - 1e-6:
         raise DriveError(
             f"{drive_folder}: observations start at {frames[0].t:.3f} s, before the "

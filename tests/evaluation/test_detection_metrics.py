@@ -27,8 +27,15 @@ def test_each_label_is_matched_once_by_confidence():
 def test_slots_hit_when_both_entrance_points_hit_in_either_order():
     det = LABELLED + 2.0
     counts = score_image(
-        det, DOWN, np.zeros(3), np.ones(3), np.array([[1, 0], [2, 0]]),
-        LABELLED, DOWN, np.array([0, 0, 1]), SLOTS,
+        det,
+        DOWN,
+        np.zeros(3),
+        np.ones(3),
+        np.array([[1, 0], [2, 0]]),
+        LABELLED,
+        DOWN,
+        np.array([0, 0, 1]),
+        SLOTS,
     )
     s = counts.summary()
     assert (s["point_precision"], s["point_recall"]) == (1.0, 1.0)
@@ -40,12 +47,26 @@ def test_slots_hit_when_both_entrance_points_hit_in_either_order():
 def test_counts_pool_over_images():
     total = DetectionCounts()
     total += score_image(
-        LABELLED, DOWN, np.zeros(3), np.ones(3), np.zeros((0, 2)),
-        LABELLED, DOWN, np.zeros(3), SLOTS,
+        LABELLED,
+        DOWN,
+        np.zeros(3),
+        np.ones(3),
+        np.zeros((0, 2)),
+        LABELLED,
+        DOWN,
+        np.zeros(3),
+        SLOTS,
     )
     total += score_image(
-        np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
-        LABELLED, DOWN, np.zeros(3), SLOTS,
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros((0, 2)),
+        LABELLED,
+        DOWN,
+        np.zeros(3),
+        SLOTS,
     )
     s = total.summary()
     assert s["images"] == 2 and s["point_recall"] == 0.5 and s["point_precision"] == 1.0

@@ -1,0 +1,182 @@
+"""`semslam accuracy`: predicted positioning accuracy of a map, along a route or on a grid.
+
+Reads the map (and the route, TUM), runs :mod:`semslam.analysis.accuracy`, writes
+``accuracy.json`` (the figures, the worst stretches of the route) and
+``accuracy_map.png`` (the map with the grid's single-frame sigma as a heat map and the
+route coloured by the filtered sigma) into the output folder, atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semslam.errors import ConfigError
+
+TARGET_SIGMA_M = 0.20
+"""The industry target for automated valet parking (DESIGN.md): 0.20 m."""
+
+
+def _finite(values: np.ndarray) -> list[float | None]:
+    return [None if not math.isfinite(v) else round(float(v), 4) for v in values]
+
+
+def _stat(values: np.ndarray, q: float) -> float | None:
+    """The q-th percentile (an element of ``values``: infinities stay infinite), None when
+    it is infinite (unobservable) or there are no values."""
+    v = np.asarray(values, float).ravel()
+    if not len(v):
+        return None
+    out = float(np.percentile(v, q, method="higher"))
+    return round(out, 4) if math.isfinite(out) else None
+
+
+def predicted_accuracy(
+    map_path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    route: str | os.PathLike[str] | None = None,
+    grade: str = "automotive",
+    grid_step: float = 1.0,
+    threshold: float = TARGET_SIGMA_M,
+) -> dict[str, Any]:
+    """Predict the accuracy the map allows and write the JSON and the picture.
+
+    Raises:
+        MapError / FormatError: a broken map or route file.
+        ConfigError: unknown grade or a non-positive grid step / threshold.
+    """
+    from semslam.analysis.accuracy import (
+        GRADES,
+        MapGeometry,
+        predicted_along_route,
+        predicted_on_grid,
+        worst_stretches,
+    )
+    from semslam.io import load_map
+    from semslam.io.atomic import atomic_write_bytes, atomic_write_text
+    from semslam.io.tum import read_tum
+
+    if grade not in GRADES:
+        raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
+    for name, value in (("--grid-step", grid_step), ("--threshold", threshold)):
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
+    semantic_map = load_map(map_path)
+    geometry = MapGeometry(semantic_map)
+    bounds = geometry.bounds()
+    if route is not None:
+        t, poses = read_tum(route)
+        lo = np.minimum(poses[:, :2].min(axis=0) - 2.0, bounds[:2])
+        hi = np.maximum(poses[:, :2].max(axis=0) + 2.0, bounds[2:])
+        bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    xs, ys, grid = predicted_on_grid(geometry, step=grid_step, bounds=bounds)
+    result: dict[str, Any] = {
+        "map": os.fspath(map_path),
+        "grade": grade,
+        "threshold_m": threshold,
+        "grid": {
+            "step_m": grid_step,
+            "cells": int(grid.size),
+            "single_sigma_median_m": _stat(grid.ravel(), 50),
+            "single_sigma_p95_m": _stat(grid.ravel(), 95),
+            "unobservable_share": round(float(np.mean(~np.isfinite(grid))), 4),
+        },
+    }
+    route_xy = route_sigma = None
+    if route is not None:
+        along = predicted_along_route(geometry, poses, t, GRADES[grade])
+        distance = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
+        route_xy, route_sigma = poses[:, :2], along["filtered_sigma"]
+        result["route"] = {
+            "file": os.fspath(route),
+            "poses": len(t),
+            "length_m": round(float(distance[-1]), 2),
+            "single_sigma_median_m": _stat(along["single_sigma"], 50),
+            "filtered_sigma_median_m": _stat(along["filtered_sigma"], 50),
+            "filtered_sigma_p95_m": _stat(along["filtered_sigma"], 95),
+            "filtered_sigma_max_m": _stat(along["filtered_sigma"], 100),
+            "filtered_yaw_median_deg": _stat(along["filtered_yaw_deg"], 50),
+            "share_within_threshold": round(
+                float(np.mean(along["filtered_sigma"] <= threshold)), 4
+            ),
+            "worst_stretches": worst_stretches(distance, along["filtered_sigma"], threshold),
+            "per_pose": {
+                "t": [round(float(v), 3) for v in t],
+                "single_sigma_m": _finite(along["single_sigma"]),
+                "filtered_sigma_m": _finite(along["filtered_sigma"]),
+            },
+        }
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(
+        out / "accuracy_map.png",
+        _picture(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold),
+    )
+    atomic_write_text(out / "accuracy.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    result["files"] = [os.fspath(out / "accuracy.json"), os.fspath(out / "accuracy_map.png")]
+    return result
+
+
+def _picture(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold) -> bytes:
+    """PNG bytes: grid heat map, map elements, route coloured by filtered sigma."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    width = max(xs[-1] - xs[0], 1.0)
+    height = max(ys[-1] - ys[0], 1.0)
+    fig, ax = plt.subplots(figsize=(12, max(3.0, 12 * height / width) + 1), dpi=110)
+    shown = np.where(np.isfinite(grid), grid, np.nan)
+    image = ax.imshow(
+        shown,
+        origin="lower",
+        extent=(xs[0], xs[-1], ys[0], ys[-1]),
+        cmap="viridis_r",
+        vmin=0.0,
+        vmax=max(
+            float(np.nanpercentile(shown, 95)) if np.isfinite(shown).any() else threshold, 1e-3
+        ),
+        alpha=0.8,
+    )
+    fig.colorbar(
+        image,
+        ax=ax,
+        fraction=0.04,
+        pad=0.08,
+        orientation="horizontal",
+        label="single-frame sigma, m (worst heading)",
+    )
+    for slot in semantic_map.slots:
+        c = np.vstack([slot.corners, slot.corners[:1]])
+        ax.plot(c[:, 0], c[:, 1], color="white", lw=0.6)
+    for m in semantic_map.markings:
+        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color="0.85", lw=0.6)
+    for tag in semantic_map.tags:
+        ax.plot(tag.mTt[0], tag.mTt[1], marker="s", color="red", ms=5)
+    if route_xy is not None and len(route_xy) > 1:
+        segments = np.stack([route_xy[:-1], route_xy[1:]], axis=1)
+        sig = np.minimum(np.where(np.isfinite(route_sigma), route_sigma, 10.0), 10.0)[1:]
+        lc = LineCollection(segments, cmap="RdYlGn_r", norm=plt.Normalize(0.0, 2 * threshold))
+        lc.set_array(sig)
+        lc.set_linewidth(2.5)
+        ax.add_collection(lc)
+        fig.colorbar(lc, ax=ax, fraction=0.025, label="filtered sigma on the route, m")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, m")
+    ax.set_ylabel("y, m")
+    ax.set_title("predicted positioning accuracy (red squares: tags)")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+__all__ = ["TARGET_SIGMA_M", "predicted_accuracy"]

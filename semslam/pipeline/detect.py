@@ -1,0 +1,232 @@
+"""`semslam detect` and `semslam evaluate detections`: the top-view detectors on image files.
+
+``detect_files`` runs :class:`~semslam.perception.topview_perception.TopviewPerception` on
+each top view and returns the JSON document the command prints::
+
+    {"images": [{"image": PATH, "width": W, "height": H, "points": [...], "slots": [...],
+                 "markings": [...], "timings_ms": {...}}]}
+
+Per marking point: ``u``, ``v`` (px, OpenCV pixel centres), ``direction_deg`` (image
+coordinates, atan2(dv, du), along the separator into the slot), ``shape`` (T or L),
+``confidence``. Per slot: ``points`` (0-based indices of its entrance points),
+``corners_px`` and ``corners_vehicle`` (m; entrance-left, entrance-right, rear-right,
+rear-left), ``kind``, ``angle_deg``, ``confidence``, ``label``, ``label_confidence``.
+Per painted line: end points ``a``, ``b`` in the vehicle frame (m), ``confidence``.
+Optionally an overlay picture per image (``<stem>.png`` in the overlay folder).
+
+``evaluate_detection_folder`` scores the detectors on a folder of top views against
+labels in the DMPR-PS form (``labels/<stem>.json``) with the ps2.0 metric.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from semslam.errors import FormatError
+from semslam.evaluation.detection_metrics import DetectionCounts, score_image
+from semslam.io.atomic import atomic_write_bytes
+from semslam.perception.topview_perception import TopviewDetections, TopviewPerception
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+
+
+def read_bgr(path: str | os.PathLike[str]) -> np.ndarray:
+    """An image file as BGR uint8 (grey images are expanded), or a one-line error."""
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: no such image file")
+    image = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FormatError(f"{p}: not an image OpenCV can read")
+    return image
+
+
+def _r(values: Any, digits: int = 3) -> Any:
+    return np.round(np.asarray(values, dtype=float), digits).tolist()
+
+
+def detections_json(perception: TopviewPerception, det: TopviewDetections) -> dict[str, Any]:
+    """Points, slots with IDs and lines of one image, JSON-ready."""
+    observations = perception.slot_observations(det)
+    return {
+        "points": [
+            {
+                "u": round(float(p.uv[0]), 2),
+                "v": round(float(p.uv[1]), 2),
+                "direction_deg": round(math.degrees(p.direction), 2),
+                "shape": str(p.shape),
+                "confidence": round(float(p.confidence), 4),
+            }
+            for p in det.points
+        ],
+        "slots": [
+            {
+                "points": [int(s.i), int(s.j)],
+                "corners_px": _r(s.uv_corners, 2),
+                "corners_vehicle": _r(o.vCorners, 4),
+                "kind": str(s.kind),
+                "angle_deg": round(float(s.angle_deg), 2),
+                "confidence": round(float(s.confidence), 4),
+                "label": r.label,
+                "label_confidence": round(float(r.confidence), 4),
+            }
+            for s, r, o in zip(det.slots, det.ids, observations, strict=True)
+        ],
+        "markings": [
+            {"a": _r(m.vA, 4), "b": _r(m.vB, 4), "confidence": round(float(m.confidence), 4)}
+            for m in det.markings
+        ],
+        "timings_ms": {k: round(v, 3) for k, v in det.timings_ms.items()},
+    }
+
+
+def draw_overlay(
+    image: np.ndarray, perception: TopviewPerception, det: TopviewDetections
+) -> np.ndarray:
+    """The image with lines (blue), slots (green, with their IDs) and marking points
+    (red T, orange L, with direction) drawn on it."""
+    out = image.copy()
+    spec = perception.spec
+    for m in det.markings:
+        a, b = spec.vehicle_to_pixel(np.array([m.vA, m.vB]))
+        cv2.line(
+            out,
+            tuple(int(round(x)) for x in a),
+            tuple(int(round(x)) for x in b),
+            (255, 128, 0),
+            2,
+            cv2.LINE_AA,
+        )
+    for s, r in zip(det.slots, det.ids, strict=True):
+        poly = np.round(np.asarray(s.uv_corners)).astype(np.int32)
+        cv2.polylines(out, [poly], True, (0, 220, 0), 2, cv2.LINE_AA)
+        if r.label:
+            centre = np.asarray(s.uv_corners, float).mean(axis=0)
+            text = f"{r.label} {r.confidence:.2f}"
+            org = (int(centre[0]) - 30, int(centre[1]))
+            cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+            cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 0), 1, cv2.LINE_AA)
+    for p in det.points:
+        u, v = float(p.uv[0]), float(p.uv[1])
+        colour = (0, 0, 255) if str(p.shape) == "T" else (0, 140, 255)
+        tip = (
+            int(round(u + 25 * math.cos(p.direction))),
+            int(round(v + 25 * math.sin(p.direction))),
+        )
+        cv2.circle(out, (int(round(u)), int(round(v))), 5, colour, 2, cv2.LINE_AA)
+        cv2.line(out, (int(round(u)), int(round(v))), tip, colour, 2, cv2.LINE_AA)
+    return out
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV cannot fail on a BGR uint8 array
+        raise FormatError(f"{path}: could not encode the overlay")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def detect_files(
+    images: Sequence[str | os.PathLike[str]],
+    overlay_dir: str | os.PathLike[str] | None = None,
+    lines: bool = True,
+    perception: TopviewPerception | None = None,
+) -> dict[str, Any]:
+    """Run the top-view detectors on every image; the JSON-ready result (module doc).
+
+    Raises:
+        FormatError: an image is missing or unreadable.
+        PerceptionError: a model is missing or broken, or an image has the wrong type.
+    """
+    perception = perception or TopviewPerception(lines=lines)
+    out = []
+    for path in images:
+        image = read_bgr(path)
+        det = perception.detect(image)
+        out.append(
+            {
+                "image": os.fspath(path),
+                "width": int(image.shape[1]),
+                "height": int(image.shape[0]),
+                **detections_json(perception, det),
+            }
+        )
+        if overlay_dir is not None:
+            _write_png(
+                Path(overlay_dir) / f"{Path(path).stem}.png", draw_overlay(image, perception, det)
+            )
+    return {"images": out}
+
+
+def evaluate_detection_folder(
+    images_dir: str | os.PathLike[str],
+    labels_dir: str | os.PathLike[str],
+    perception: TopviewPerception | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Score the detectors on every image of ``images_dir`` that has a label file
+    ``labels_dir/<stem>.json`` (DMPR-PS form) with the ps2.0 metric.
+
+    Returns:
+        ``point_precision``, ``point_recall``, ``slot_precision``, ``slot_recall``,
+        ``shape_accuracy``, the pooled counts (``images`` among them), the median
+        milliseconds per stage, and the images without labels.
+
+    Raises:
+        FormatError: a folder is missing, holds no labelled image, or a file is broken.
+    """
+    from semslam.io.dmpr_labels import read_dmpr_labels
+
+    images_dir, labels_dir = Path(images_dir), Path(labels_dir)
+    for folder in (images_dir, labels_dir):
+        if not folder.is_dir():
+            raise FormatError(f"{folder}: no such folder")
+    images = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    labelled = [p for p in images if (labels_dir / f"{p.stem}.json").is_file()]
+    if not labelled:
+        raise FormatError(f"{images_dir}: no image with a label file in {labels_dir}")
+    perception = perception or TopviewPerception(lines=False)
+    total = DetectionCounts()
+    timings: dict[str, list[float]] = {}
+    for k, path in enumerate(labelled):
+        labels = read_dmpr_labels(labels_dir / f"{path.stem}.json")
+        det = perception.detect(read_bgr(path))
+        points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
+        total += score_image(
+            points,
+            np.array([p.direction for p in det.points], float),
+            np.array([0 if str(p.shape) == "T" else 1 for p in det.points], int),
+            np.array([p.confidence for p in det.points], float),
+            np.array([[s.i, s.j] for s in det.slots], int).reshape(-1, 2),
+            labels.points,
+            labels.directions,
+            labels.shapes,
+            labels.slots,
+        )
+        for stage, ms in det.timings_ms.items():
+            timings.setdefault(stage, []).append(ms)
+        if progress is not None:
+            progress(k + 1, len(labelled))
+    return {
+        "images_dir": os.fspath(images_dir),
+        "labels_dir": os.fspath(labels_dir),
+        **total.summary(),
+        "median_ms": {k: round(statistics.median(v), 3) for k, v in timings.items()},
+        "unlabelled_images": len(images) - len(labelled),
+    }
+
+
+__all__ = [
+    "detect_files",
+    "detections_json",
+    "draw_overlay",
+    "evaluate_detection_folder",
+    "read_bgr",
+]

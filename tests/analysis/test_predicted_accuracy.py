@@ -1,0 +1,96 @@
+"""Hofmann's predicted accuracy: information of one frame, filtering along a route."""
+
+import math
+
+import numpy as np
+
+from semslam.analysis.accuracy import (
+    GRADES,
+    MapGeometry,
+    SensorModel,
+    _yaw_row,
+    frame_information,
+    position_sigma,
+    predicted_along_route,
+    single_frame_covariance,
+    worst_stretches,
+)
+from semslam.localization.measurements import PointMeasurement
+from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag, TagFamily
+
+
+def _slot(x: float, y: float, sid: int = 1) -> Slot:
+    corners = np.array([[x, y], [x + 2.5, y], [x + 2.5, y + 3.0], [x, y + 3.0]])
+    return Slot(sid, None, 0.0, corners, np.zeros((4, 2, 2)), SlotKind.PERPENDICULAR)
+
+
+def test_corner_information_is_the_point_jacobians_weighted():
+    m = SemanticMap(slots=(_slot(1.0, 1.5),))
+    pose = np.array([0.0, 0.0, 0.3])
+    info, counts = frame_information(MapGeometry(m), pose, SensorModel(corner_sigma=0.1))
+    seen = m.slots[0].corners  # all inside the top view, none in the ego box
+    # numerical Jacobian of the vehicle-frame prediction of the corners seen
+    meas = PointMeasurement(np.zeros(2 * len(seen)), np.eye(2), np.array(seen))
+    H = np.zeros((2 * len(seen), 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        H[:, k] = (meas.predict(pose + d) - meas.predict(pose - d)).ravel() / 2e-6
+    assert counts["corners"] == len(seen) == 4
+    np.testing.assert_allclose(info, H.T @ H / 0.01, rtol=1e-5, atol=1e-6)
+
+
+def test_line_yaw_row_matches_a_numerical_derivative():
+    n, vE = np.array([0.6, 0.8]), np.array([2.0, -1.0])
+
+    def f(yaw):
+        c, s = math.cos(yaw), math.sin(yaw)
+        return float(n @ (np.array([[c, -s], [s, c]]) @ vE))
+
+    yaw = 0.7
+    c, s = math.cos(yaw), math.sin(yaw)
+    numeric = (f(yaw + 1e-6) - f(yaw - 1e-6)) / 2e-6
+    assert abs(_yaw_row(n, np.array([[c, -s], [s, c]]), vE) - numeric) < 1e-8
+
+
+def test_one_line_cannot_fix_a_pose_but_slots_and_a_tag_can():
+    line = SemanticMap(markings=(Marking(np.array([-4.0, 2.0]), np.array([4.0, 2.0]), 0.12),))
+    info, counts = frame_information(MapGeometry(line), np.zeros(3))
+    assert counts["lines"] == 1
+    assert position_sigma(single_frame_covariance(info)) == math.inf
+    tag = Tag(TagFamily.TAG36H11, 1, 0.3, np.array([8.0, 0.0, math.pi]), 1.0, np.zeros((3, 3)))
+    both = SemanticMap(slots=(_slot(1.0, 1.5),), tags=(tag,))
+    info, counts = frame_information(MapGeometry(both), np.zeros(3))
+    assert counts == {"corners": 4, "tags": 1, "lines": 0}
+    sigma = position_sigma(single_frame_covariance(info))
+    slot_only, _ = frame_information(MapGeometry(SemanticMap(slots=both.slots)), np.zeros(3))
+    assert 0 < sigma < position_sigma(single_frame_covariance(slot_only)) < 0.1
+    # a tag facing away is not seen
+    away = Tag(TagFamily.TAG36H11, 1, 0.3, np.array([8.0, 0.0, 0.0]), 1.0, np.zeros((3, 3)))
+    _, counts = frame_information(MapGeometry(SemanticMap(tags=(away,))), np.zeros(3))
+    assert counts["tags"] == 0
+
+
+def test_filtered_error_grows_without_landmarks_faster_for_worse_odometry():
+    m = SemanticMap(slots=(_slot(1.0, 1.5),))
+    t = np.arange(0.0, 30.0, 0.5)
+    poses = np.column_stack([t * 2.0, np.zeros_like(t), np.zeros_like(t)])  # 2 m/s along x
+    g = MapGeometry(m)
+    auto = predicted_along_route(g, poses, t, GRADES["automotive"])
+    precise = predicted_along_route(g, poses, t, GRADES["precise"])
+    assert auto["corners"][0] == 4 and auto["corners"][-1] == 0
+    assert auto["filtered_sigma"][0] < 0.1
+    assert np.all(np.diff(auto["filtered_sigma"][10:]) > 0)  # dead reckoning only
+    def growth(r):
+        return r["filtered_sigma"][-1] ** 2 - r["filtered_sigma"][10] ** 2
+
+    assert growth(auto) > 2 * growth(precise) > 0
+    assert np.isinf(auto["single_sigma"][-1])
+
+
+def test_worst_stretches_are_the_longest_runs_above_the_threshold():
+    d = np.arange(10.0)
+    sigma = np.array([0.1, 0.3, 0.4, 0.1, 0.5, 0.1, 0.3, 0.3, 0.3, 0.1])
+    runs = worst_stretches(d, sigma, 0.2)
+    assert [(r["start_m"], r["end_m"]) for r in runs] == [(6, 8), (1, 2), (4, 4)]
+    assert runs[1]["worst_sigma_m"] == 0.4
