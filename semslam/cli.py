@@ -404,6 +404,42 @@ def accuracy(
     print_metrics("semslam accuracy", rows, False)
 
 
+@app.command("plan-tags")
+def plan_tags_command(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
+    route: Annotated[Path, typer.Option(metavar="TRAJ.tum", help="The route cars drive.")],
+    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
+                                         help="Folder for tag_plan.json and tag_plan.png.")],
+    count: Annotated[int, typer.Option(help="How many tags to propose.")] = 5,
+    grade: Annotated[
+        Grade, typer.Option(help="Odometry / IMU grade (Hofmann).")
+    ] = Grade.automotive,
+    keep_existing: Annotated[
+        bool, typer.Option(help="Keep the map's own tags (--no-keep-existing: plan from none).")
+    ] = True,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Propose where to put COUNT tags (greedy on the predicted worst sigma along the
+    route) and show how accuracy changes with their number, against evenly spread tags."""
+    from semslam.pipeline.plan_tags import plan_tags
+    from semslam.reporting import print_metrics
+
+    try:
+        result = plan_tags(map_path, route, output, count, grade.value, keep_existing)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    if json_output:
+        print_metrics("semslam plan-tags", result, True)
+        return
+    rows: dict[str, object] = {}
+    for step, even in zip(result["greedy"], [None, *result["evenly_spread"]], strict=True):
+        where = "" if step["tag"] is None else " at ({:.1f}, {:.1f})".format(*step["tag"][:2])
+        spread = "" if even is None else f"; evenly spread {even['worst_m']:.3f} m"
+        rows[f"{step['count']} tags{where}"] = f"worst {step['worst_m']:.3f} m{spread}"
+    rows["written"] = ", ".join(result["files"])
+    print_metrics("semslam plan-tags", rows, False)
+
+
 @app.command("dump-config")
 def dump_config(config: ConfigOption = None) -> None:
     """Print the configuration in force (defaults, then --config, then SEMSLAM_ variables)."""

@@ -147,3 +147,96 @@ def default_front_camera() -> Camera:
 def default_rig() -> Rig:
     """The simulator's rig: the front camera and the ps2.0 top view."""
     return Rig(cameras={"front": default_front_camera()})
+
+
+# --------------------------------------------------------------------------- fisheye rig
+
+
+def fisheye_project(camera: Camera, cP: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Project (N, 3) camera-frame points through ``camera``'s equidistant fisheye model.
+
+    OpenCV's ``cv2.fisheye.projectPoints`` formula (``theta_d = theta (1 + k1 theta^2 +
+    k2 theta^4 + k3 theta^6 + k4 theta^8)``), but with ``theta = atan2(r, z)`` so that
+    points beside and behind the camera (``z <= 0``, a lens wider than 180 deg) project
+    too, where OpenCV's ``atan(r / z)`` folds them back.
+
+    Returns:
+        (N, 2) pixels (OpenCV convention) and (N,) angles from the optical axis (rad).
+    """
+    p = np.atleast_2d(np.asarray(cP, dtype=float))
+    k = np.asarray(camera.D, dtype=float).ravel()
+    r = np.hypot(p[:, 0], p[:, 1])
+    theta = np.arctan2(r, p[:, 2])
+    t2 = theta * theta
+    theta_d = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    scale = np.divide(theta_d, r, out=np.zeros_like(r), where=r > 1e-12)
+    xd, yd = p[:, 0] * scale, p[:, 1] * scale
+    K = camera.K
+    uv = np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+    return uv, theta
+
+
+def fisheye_unproject(camera: Camera, uv: ArrayLike, iterations: int = 20) -> FloatArray:
+    """(N, 2) pixels to (N, 3) unit rays in the camera frame (the inverse of
+    :func:`fisheye_project`, valid beyond 90 deg from the axis while ``theta_d`` grows
+    with ``theta``; Newton on ``theta``, at most ``iterations`` steps)."""
+    q = np.atleast_2d(np.asarray(uv, dtype=float))
+    k = np.asarray(camera.D, dtype=float).ravel()
+    K = camera.K
+    yd = (q[:, 1] - K[1, 2]) / K[1, 1]
+    xd = (q[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    theta_d = np.hypot(xd, yd)
+    theta = theta_d.copy()
+    for _ in range(iterations):
+        t2 = theta * theta
+        f = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))) - theta_d
+        df = 1.0 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+        step = f / df
+        theta = theta - step
+        if not np.any(np.abs(step) > 1e-12):
+            break
+    s = np.divide(np.sin(theta), theta_d, out=np.zeros_like(theta), where=theta_d > 1e-12)
+    return np.stack([xd * s, yd * s, np.cos(theta)], axis=1)
+
+
+def default_fisheye_cameras(size: tuple[int, int] = (960, 640)) -> dict[str, Camera]:
+    """The simulator's surround-view fisheyes ``fisheye_front``, ``fisheye_rear``,
+    ``fisheye_left``, ``fisheye_right`` (the names of frames.csv's columns).
+
+    Equidistant lenses of about 190 deg horizontal field of view at ``size`` (w, h) with
+    a mild Kannala-Brandt distortion; front camera in the bumper 0.7 m up tilted 28 deg
+    down, rear camera above the number plate 0.9 m up tilted 32 deg down, side cameras
+    under the mirrors 1.0 m up looking sideways 65 deg down.
+    """
+    w, h = size
+    f = 0.925 * w / math.pi  # about 95 deg from the axis at the left and right borders
+    K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    D = np.array([0.02, -0.006, 0.001, -0.0001])
+    mounts = {
+        "fisheye_front": ([1.8, 0.0, 0.7], 0.0, 28.0),
+        "fisheye_rear": ([-1.8, 0.0, 0.9], math.pi, 32.0),
+        "fisheye_left": ([0.5, 0.95, 1.0], math.pi / 2, 65.0),
+        "fisheye_right": ([0.5, -0.95, 1.0], -math.pi / 2, 65.0),
+    }
+    return {
+        name: Camera(
+            name=name,
+            model=CameraModel.FISHEYE,
+            K=K.copy(),
+            D=D.copy(),
+            size=(w, h),
+            T_vehicle_camera=camera_pose_matrix(pos, yaw, math.radians(pitch)),
+        )
+        for name, (pos, yaw, pitch) in mounts.items()
+    }
+
+
+def surround_rig() -> Rig:
+    """:func:`default_rig` plus the four surround-view fisheyes of
+    :func:`default_fisheye_cameras`."""
+    rig = default_rig()
+    return Rig(
+        cameras={**rig.cameras, **default_fisheye_cameras()},
+        topview=rig.topview,
+        vehicle=rig.vehicle,
+    )

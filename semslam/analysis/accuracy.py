@@ -137,34 +137,10 @@ def frame_information(
             info += np.einsum("kai,kab,kbj->ij", H, W, H)
             counts["corners"] = len(seen)
     # tags: vTt = mTv^-1 mTt, in the camera's field of view, facing it
-    for mTt, tcov in zip(geometry.tags, geometry.tag_cov, strict=True):
-        vt = R.T @ (mTt[:2] - pose[:2])
-        rel = vt - np.array([sensors.camera_x, 0.0])
-        r = float(np.hypot(*rel))
-        bearing = math.atan2(rel[1], rel[0])
-        facing = math.cos(mTt[2] - pose[2] - bearing - math.pi)
-        if (
-            r > sensors.tag_range_limit
-            or r < 0.5
-            or abs(bearing) > math.radians(sensors.tag_fov_deg) / 2
-            or facing < math.cos(math.radians(sensors.tag_max_incidence_deg))
-        ):
-            continue
-        radial = rel / r
-        tangential = np.array([-radial[1], radial[0]])
-        sr = sensors.tag_range_sigma_abs + sensors.tag_range_sigma_rel * r
-        sb = math.radians(sensors.tag_bearing_sigma_deg) * r
-        C = np.zeros((3, 3))
-        C[:2, :2] = sr**2 * np.outer(radial, radial) + sb**2 * np.outer(tangential, tangential)
-        C[2, 2] = math.radians(sensors.tag_yaw_sigma_deg) ** 2
-        Rt = np.eye(3)
-        Rt[:2, :2] = R
-        C += Rt.T @ tcov @ Rt
-        H = np.zeros((3, 3))
-        H[:2] = point_jacobian(pose, mTt[None, :2])
-        H[2, 2] = -1.0
-        info += H.T @ np.linalg.inv(C) @ H
-        counts["tags"] += 1
+    if len(geometry.tags):
+        tag_info, seen_tags = tag_information(pose[None], geometry.tags, geometry.tag_cov, sensors)
+        info += tag_info[0]
+        counts["tags"] = int(seen_tags[0])
     # painted lines: the visible part's end points, across the line only
     half = sensors.topview_half_m
     for a, b in geometry.lines:
@@ -183,6 +159,64 @@ def frame_information(
             info += np.outer(h, h) / sensors.marking_sigma**2
         counts["lines"] += 1
     return info, counts
+
+
+def tag_information(
+    poses: FloatArray,
+    tags: FloatArray,
+    tag_cov: FloatArray | None = None,
+    sensors: SensorModel = SensorModel(),
+) -> tuple[FloatArray, np.ndarray]:
+    """Information (N, 3, 3) that tags ``mTt`` (T, 3) give at each of ``poses`` (N, 3), and
+    how many are seen (N,): those within the range limit, inside the front camera's
+    field of view and facing it. Range noise along the view ray, bearing noise across,
+    yaw noise on the tag's yaw; the tags' map covariance (T, 3, 3) adds (vehicle frame)."""
+    poses = np.asarray(poses, float).reshape(-1, 3)
+    tags = np.asarray(tags, float).reshape(-1, 3)
+    tag_cov = np.zeros((len(tags), 3, 3)) if tag_cov is None else np.asarray(tag_cov, float)
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    dx = tags[None, :, 0] - poses[:, :1]
+    dy = tags[None, :, 1] - poses[:, 1:2]
+    vx, vy = c * dx + s * dy, -s * dx + c * dy  # tag centre in the vehicle frame (N, T)
+    rx, ry = vx - sensors.camera_x, vy
+    r = np.hypot(rx, ry)
+    bearing = np.arctan2(ry, rx)
+    facing = np.cos(tags[None, :, 2] - poses[:, 2:3] - bearing - np.pi)
+    seen = (
+        (r <= sensors.tag_range_limit)
+        & (r >= 0.5)
+        & (np.abs(bearing) <= np.radians(sensors.tag_fov_deg) / 2)
+        & (facing >= math.cos(math.radians(sensors.tag_max_incidence_deg)))
+    )
+    info = np.zeros((len(poses), 3, 3))
+    n_idx, t_idx = np.nonzero(seen)
+    if not len(n_idx):
+        return info, seen.sum(axis=1)
+    rr = r[n_idx, t_idx]
+    cb, sb_ = np.cos(bearing[n_idx, t_idx]), np.sin(bearing[n_idx, t_idx])
+    sr = sensors.tag_range_sigma_abs + sensors.tag_range_sigma_rel * rr
+    st = math.radians(sensors.tag_bearing_sigma_deg) * rr
+    C = np.zeros((len(n_idx), 3, 3))
+    C[:, 0, 0] = sr**2 * cb**2 + st**2 * sb_**2
+    C[:, 1, 1] = sr**2 * sb_**2 + st**2 * cb**2
+    C[:, 0, 1] = C[:, 1, 0] = (sr**2 - st**2) * cb * sb_
+    C[:, 2, 2] = math.radians(sensors.tag_yaw_sigma_deg) ** 2
+    Rt = np.zeros((len(n_idx), 3, 3))
+    cc, ss = c[n_idx, 0], s[n_idx, 0]
+    Rt[:, 0, 0], Rt[:, 0, 1], Rt[:, 1, 0], Rt[:, 1, 1] = cc, -ss, ss, cc
+    Rt[:, 2, 2] = 1.0
+    C += np.transpose(Rt, (0, 2, 1)) @ tag_cov[t_idx] @ Rt
+    # Jacobian of (R^T (t_tag - t), yaw_tag - yaw) with respect to (x, y, yaw)
+    H = np.zeros((len(n_idx), 3, 3))
+    ddx, ddy = dx[n_idx, t_idx], dy[n_idx, t_idx]
+    H[:, 0, 0], H[:, 0, 1] = -cc, -ss
+    H[:, 1, 0], H[:, 1, 1] = ss, -cc
+    H[:, 0, 2] = -ss * ddx + cc * ddy
+    H[:, 1, 2] = -cc * ddx - ss * ddy
+    H[:, 2, 2] = -1.0
+    contrib = np.transpose(H, (0, 2, 1)) @ np.linalg.inv(C) @ H
+    np.add.at(info, n_idx, contrib)
+    return info, seen.sum(axis=1)
 
 
 def _yaw_row(n: FloatArray, R: FloatArray, vE: FloatArray) -> float:
@@ -207,6 +241,57 @@ def single_frame_covariance(info: FloatArray) -> FloatArray:
     return np.linalg.inv(info)
 
 
+def route_information(
+    geometry: MapGeometry, poses: FloatArray, sensors: SensorModel = SensorModel()
+) -> tuple[FloatArray, dict[str, np.ndarray]]:
+    """:func:`frame_information` at every pose: (N, 3, 3) and the counts per pose."""
+    poses = np.asarray(poses, float).reshape(-1, 3)
+    infos = np.zeros((len(poses), 3, 3))
+    counts = {k: np.zeros(len(poses), int) for k in ("corners", "tags", "lines")}
+    for k, pose in enumerate(poses):
+        infos[k], seen = frame_information(geometry, pose, sensors)
+        for key, value in seen.items():
+            counts[key][k] = value
+    return infos, counts
+
+
+def filter_route(
+    infos: FloatArray,
+    poses: FloatArray,
+    times: FloatArray,
+    grade: OdometryGrade = GRADES["automotive"],
+) -> FloatArray:
+    """Filtered pose covariance (N, 3, 3) along a route from the frames' information.
+
+    The filter starts from the first frame's own covariance (or 1 m / 5 deg if it has
+    none, the heading never better than the grade's) and predicts between poses with
+    the grade: speed noise along the travelled step, yaw-rate noise on the heading (see
+    :class:`OdometryGrade`), heading uncertainty carried into the position by the step.
+    """
+    poses = np.asarray(poses, float).reshape(-1, 3)
+    times = np.asarray(times, float).reshape(-1)
+    out = np.zeros((len(poses), 3, 3))
+    sv2, sw2 = grade.speed_sigma**2, math.radians(grade.rate_sigma_deg) ** 2
+    first = single_frame_covariance(infos[0])
+    P = first.copy() if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
+    P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
+    out[0] = P
+    F = np.eye(3)
+    for k in range(1, len(poses)):
+        dt = max(float(times[k] - times[k - 1]), 1e-6)
+        step = poses[k, :2] - poses[k - 1, :2]
+        c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
+        F[0, 2], F[1, 2] = -step[1], step[0]
+        P = F @ P @ F.T
+        P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]])
+        P[2, 2] += sw2 * dt
+        if infos[k].any():
+            P = np.linalg.inv(np.linalg.inv(P) + infos[k])
+        P = (P + P.T) / 2
+        out[k] = P
+    return out
+
+
 def predicted_along_route(
     geometry: MapGeometry,
     poses: FloatArray,
@@ -214,64 +299,22 @@ def predicted_along_route(
     grade: OdometryGrade = GRADES["automotive"],
     sensors: SensorModel = SensorModel(),
 ) -> dict[str, FloatArray]:
-    """Single-frame and filtered predicted accuracy at every pose of a route.
-
-    The filter starts from the first frame's own covariance (or 1 m / 5 deg if it has
-    none) and predicts between poses with the grade: speed noise along the travelled
-    step, yaw-rate noise on the heading (see :class:`OdometryGrade`), heading noise carried
-    into the position by the step.
+    """Single-frame and filtered (:func:`filter_route`) predicted accuracy at every pose.
 
     Returns:
         ``single_sigma`` and ``filtered_sigma`` (m, position semi-axis), ``single_yaw_deg``
         and ``filtered_yaw_deg`` (1-sigma), ``corners``, ``tags``, ``lines`` (counts seen).
     """
-    poses = np.asarray(poses, float).reshape(-1, 3)
-    times = np.asarray(times, float).reshape(-1)
-    n = len(poses)
-    out = {
-        k: np.zeros(n)
-        for k in (
-            "single_sigma",
-            "filtered_sigma",
-            "single_yaw_deg",
-            "filtered_yaw_deg",
-            "corners",
-            "tags",
-            "lines",
-        )
+    infos, counts = route_information(geometry, poses, sensors)
+    filtered = filter_route(infos, poses, times, grade)
+    singles = [single_frame_covariance(info) for info in infos]
+    return {
+        "single_sigma": np.array([position_sigma(q) for q in singles]),
+        "filtered_sigma": np.array([position_sigma(p) for p in filtered]),
+        "single_yaw_deg": np.degrees(np.sqrt(np.array([q[2, 2] for q in singles]))),
+        "filtered_yaw_deg": np.degrees(np.sqrt(filtered[:, 2, 2])),
+        **{k: v.astype(float) for k, v in counts.items()},
     }
-    P = np.diag([1.0, 1.0, math.radians(5.0) ** 2])
-    sv, sw = grade.speed_sigma, math.radians(grade.rate_sigma_deg)
-    for k in range(n):
-        if k:
-            dt = max(float(times[k] - times[k - 1]), 1e-6)
-            step = poses[k, :2] - poses[k - 1, :2]
-            yaw = float(poses[k - 1, 2])
-            F = np.eye(3)
-            F[0, 2], F[1, 2] = -step[1], step[0]
-            G = np.zeros((3, 2))
-            G[:2, 0] = [math.cos(yaw), math.sin(yaw)]
-            G[2, 1] = 1.0
-            Q = G @ np.diag([sv**2 * dt, sw**2 * dt]) @ G.T
-            P = F @ P @ F.T + Q
-        info, counts = frame_information(geometry, poses[k], sensors)
-        single = single_frame_covariance(info)
-        if k == 0:
-            if np.all(np.isfinite(single)):
-                P = single.copy()
-            P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
-        else:
-            P = np.linalg.inv(np.linalg.inv(P) + info)
-        P = (P + P.T) / 2
-        out["single_sigma"][k] = position_sigma(single)
-        out["filtered_sigma"][k] = position_sigma(P)
-        out["single_yaw_deg"][k] = (
-            math.degrees(math.sqrt(single[2, 2])) if np.isfinite(single[2, 2]) else UNOBSERVABLE
-        )
-        out["filtered_yaw_deg"][k] = math.degrees(math.sqrt(P[2, 2]))
-        for key, value in counts.items():
-            out[key][k] = value
-    return out
 
 
 def predicted_on_grid(
@@ -333,9 +376,12 @@ __all__ = [
     "OdometryGrade",
     "SensorModel",
     "frame_information",
+    "filter_route",
     "position_sigma",
     "predicted_along_route",
     "predicted_on_grid",
+    "route_information",
     "single_frame_covariance",
+    "tag_information",
     "worst_stretches",
 ]

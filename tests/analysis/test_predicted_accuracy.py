@@ -81,6 +81,7 @@ def test_filtered_error_grows_without_landmarks_faster_for_worse_odometry():
     assert auto["corners"][0] == 4 and auto["corners"][-1] == 0
     assert auto["filtered_sigma"][0] < 0.1
     assert np.all(np.diff(auto["filtered_sigma"][10:]) > 0)  # dead reckoning only
+
     def growth(r):
         return r["filtered_sigma"][-1] ** 2 - r["filtered_sigma"][10] ** 2
 
@@ -94,3 +95,34 @@ def test_worst_stretches_are_the_longest_runs_above_the_threshold():
     runs = worst_stretches(d, sigma, 0.2)
     assert [(r["start_m"], r["end_m"]) for r in runs] == [(6, 8), (1, 2), (4, 4)]
     assert runs[1]["worst_sigma_m"] == 0.4
+
+
+def test_tag_information_uses_the_tag_measurements_jacobian():
+    from semslam.analysis.accuracy import tag_information
+    from semslam.localization.measurements import TagMeasurement
+
+    pose = np.array([1.0, -2.0, 0.4])
+    mTt = np.array([9.0, 2.0, 0.4 + math.pi - 0.2])
+    info, seen = tag_information(pose[None], mTt[None])
+    assert seen.tolist() == [1]
+    meas = TagMeasurement(np.zeros(3), np.eye(3), mTt)
+    H = np.zeros((3, 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        H[:, k] = (meas.predict(pose + d) - meas.predict(pose - d)).ravel() / 2e-6
+    # info = H^T C^-1 H with the numerical H: recover C, the measurement covariance
+    C = np.linalg.inv(np.linalg.inv(H).T @ info[0] @ np.linalg.inv(H))
+    np.testing.assert_allclose(C, C.T, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(C) > 0)
+    r = math.hypot(
+        *(
+            np.array([[math.cos(0.4), math.sin(0.4)], [-math.sin(0.4), math.cos(0.4)]])
+            @ (mTt[:2] - pose[:2])
+            - [1.2, 0.0]
+        )
+    )
+    sr = 0.02 + 0.01 * r
+    # range variance along the view ray, bearing variance across it, tag yaw noise
+    assert abs(C[:2, :2].trace() - sr**2 - (math.radians(0.3) * r) ** 2) < 1e-6
+    assert abs(C[2, 2] - math.radians(3.0) ** 2) < 1e-6

@@ -1,0 +1,155 @@
+"""Where to put fiducial tags: greedy placement on the predicted accuracy along a route.
+
+Candidates stand beside the route every ``spacing`` metres, ``offset`` metres to either
+side, facing the cars that drive toward them (the front camera sees them on approach).
+Each round adds the candidate that most lowers the worst filtered position sigma along
+the route (ties broken by the mean), with the route's landmark information computed once
+and each candidate's tag information once (:mod:`semslam.analysis.accuracy`). For
+comparison, the same number of tags spread evenly along the route (TiEV found 10
+evenly spread tags best, by trial). Pure numpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semslam.analysis.accuracy import (
+    OdometryGrade,
+    SensorModel,
+    filter_route,
+    position_sigma,
+    tag_information,
+)
+from semslam.geometry import FloatArray
+
+
+@dataclass(frozen=True)
+class PlacementStep:
+    """Accuracy along the route with ``count`` added tags: worst, 95th percentile and mean
+    filtered position sigma (m); ``tag`` the pose (x, y, yaw) added at this step."""
+
+    count: int
+    worst_m: float
+    p95_m: float
+    mean_m: float
+    tag: tuple[float, float, float] | None = None
+
+
+def route_distance(poses: FloatArray) -> FloatArray:
+    """Arc length (m) along the route's positions."""
+    steps = np.hypot(*np.diff(np.asarray(poses, float)[:, :2], axis=0).T)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def resample_route(
+    poses: FloatArray, times: FloatArray, step: float = 1.0
+) -> tuple[FloatArray, FloatArray]:
+    """Every pose at least ``step`` metres after the previous kept one (first and last
+    kept): the planner's working route."""
+    d = route_distance(poses)
+    keep = [0]
+    for k in range(1, len(d)):
+        if d[k] - d[keep[-1]] >= step:
+            keep.append(k)
+    if keep[-1] != len(d) - 1:
+        keep.append(len(d) - 1)
+    return np.asarray(poses, float)[keep], np.asarray(times, float)[keep]
+
+
+def candidate_tags(poses: FloatArray, spacing: float = 5.0, offset: float = 3.0) -> FloatArray:
+    """Candidate tag poses (C, 3): every ``spacing`` m along the route, ``offset`` m to its
+    left and right, the tag's normal against the direction of travel."""
+    poses = np.asarray(poses, float)
+    d = route_distance(poses)
+    out = []
+    for s in np.arange(spacing, d[-1], spacing):
+        k = int(np.searchsorted(d, s))
+        x, y, yaw = poses[min(k, len(poses) - 1)]
+        normal = np.array([-np.sin(yaw), np.cos(yaw)])
+        for side in (1.0, -1.0):
+            p = np.array([x, y]) + side * offset * normal
+            out.append([p[0], p[1], np.arctan2(-np.sin(yaw), -np.cos(yaw))])
+    return np.array(out, float).reshape(-1, 3)
+
+
+def _sigmas(infos, poses, times, grade) -> FloatArray:
+    return np.array([position_sigma(p) for p in filter_route(infos, poses, times, grade)])
+
+
+def _step(count: int, sigma: FloatArray, tag=None) -> PlacementStep:
+    return PlacementStep(
+        count,
+        float(sigma.max()),
+        float(np.percentile(sigma, 95)),
+        float(sigma.mean()),
+        None if tag is None else tuple(float(v) for v in tag),
+    )
+
+
+def greedy_placement(
+    base_infos: FloatArray,
+    poses: FloatArray,
+    times: FloatArray,
+    candidates: FloatArray,
+    count: int,
+    grade: OdometryGrade,
+    sensors: SensorModel | None = None,
+) -> list[PlacementStep]:
+    """Add ``count`` tags one at a time, each the candidate that minimises the worst
+    filtered sigma (then the mean). Step 0 is the route without added tags."""
+    sensors = sensors or SensorModel()
+    infos = np.array(base_infos, float)
+    steps = [_step(0, _sigmas(infos, poses, times, grade))]
+    cand_infos = [tag_information(poses, c[None], None, sensors)[0] for c in candidates]
+    free = list(range(len(candidates)))
+    for n in range(1, count + 1):
+        best = None
+        for c in free:
+            if not cand_infos[c].any():
+                continue
+            sigma = _sigmas(infos + cand_infos[c], poses, times, grade)
+            key = (float(sigma.max()), float(sigma.mean()))
+            if best is None or key < best[0]:
+                best = (key, c, sigma)
+        if best is None:
+            break
+        _, c, sigma = best
+        infos = infos + cand_infos[c]
+        free.remove(c)
+        steps.append(_step(n, sigma, candidates[c]))
+    return steps
+
+
+def even_placement(
+    base_infos: FloatArray,
+    poses: FloatArray,
+    times: FloatArray,
+    candidates: FloatArray,
+    count: int,
+    grade: OdometryGrade,
+    sensors: SensorModel | None = None,
+) -> PlacementStep:
+    """``count`` tags spread evenly over the candidates (in route order, sides
+    alternating): the accuracy they give together."""
+    sensors = sensors or SensorModel()
+    if count <= 0 or not len(candidates):
+        return _step(0, _sigmas(np.asarray(base_infos, float), poses, times, grade))
+    rows = len(candidates) // 2
+    at = np.linspace(0, rows - 1, count + 2)[1:-1] if count < rows else np.arange(rows)
+    chosen = [2 * int(round(a)) + (i % 2) for i, a in enumerate(at)]
+    infos = np.array(base_infos, float)
+    for c in chosen:
+        infos = infos + tag_information(poses, candidates[c][None], None, sensors)[0]
+    return _step(len(chosen), _sigmas(infos, poses, times, grade))
+
+
+__all__ = [
+    "PlacementStep",
+    "candidate_tags",
+    "even_placement",
+    "greedy_placement",
+    "resample_route",
+    "route_distance",
+]

@@ -1,0 +1,147 @@
+"""`semslam plan-tags`: propose where to put K tags, and how accuracy changes with K.
+
+Reads the map and the route (TUM), runs :mod:`semslam.analysis.tag_placement` and writes
+``tag_plan.json`` (the proposed tags in order, the accuracy after each, the evenly spread
+comparison) and ``tag_plan.png`` (the route coloured by the predicted sigma with the
+proposed tags numbered, and accuracy against K) into the output folder, atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from semslam.errors import ConfigError
+
+
+def plan_tags(
+    map_path: str | os.PathLike[str],
+    route: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    count: int,
+    grade: str = "automotive",
+    keep_existing: bool = True,
+    spacing: float = 5.0,
+    offset: float = 3.0,
+) -> dict[str, Any]:
+    """Greedy tag placement along ``route``; the JSON-ready result (files written).
+
+    Raises:
+        MapError / FormatError: broken map or route.
+        ConfigError: count < 1, unknown grade, non-positive spacing or offset.
+    """
+    from semslam.analysis.accuracy import GRADES, MapGeometry, route_information
+    from semslam.analysis.tag_placement import (
+        candidate_tags,
+        even_placement,
+        greedy_placement,
+        resample_route,
+    )
+    from semslam.io import load_map
+    from semslam.io.atomic import atomic_write_bytes, atomic_write_text
+    from semslam.io.tum import read_tum
+    from semslam.types import SemanticMap
+
+    if count < 1:
+        raise ConfigError(f"--count: must be at least 1, got {count}")
+    if grade not in GRADES:
+        raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
+    for name, value in (("--spacing", spacing), ("--offset", offset)):
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
+    semantic_map = load_map(map_path)
+    if not keep_existing:
+        semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
+    t, poses = read_tum(route)
+    poses, t = resample_route(poses, t, 1.0)
+    infos, _ = route_information(MapGeometry(semantic_map), poses)
+    candidates = candidate_tags(poses, spacing, offset)
+    steps = greedy_placement(infos, poses, t, candidates, count, GRADES[grade])
+    even = [
+        even_placement(infos, poses, t, candidates, k, GRADES[grade]) for k in range(1, count + 1)
+    ]
+    result: dict[str, Any] = {
+        "map": os.fspath(map_path),
+        "route": os.fspath(route),
+        "grade": grade,
+        "existing_tags": len(semantic_map.tags),
+        "candidates": len(candidates),
+        "greedy": [_rounded(asdict(s)) for s in steps],
+        "evenly_spread": [_rounded(asdict(s)) for s in even],
+        "proposed_tags": [
+            {"x": round(s.tag[0], 3), "y": round(s.tag[1], 3), "yaw": round(s.tag[2], 4)}
+            for s in steps[1:]
+            if s.tag is not None
+        ],
+    }
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "tag_plan.png", _picture(semantic_map, poses, steps, even))
+    atomic_write_text(out / "tag_plan.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
+    return result
+
+
+def _rounded(d: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, float):
+            v = round(v, 4) if math.isfinite(v) else None
+        elif isinstance(v, tuple):
+            v = [round(float(x), 4) for x in v]
+        out[k] = v
+    return out
+
+
+def _picture(semantic_map, poses, steps, even) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(15, 5.5), dpi=100, gridspec_kw={"width_ratios": [2.6, 1]}
+    )
+    for slot in semantic_map.slots:
+        c = np.vstack([slot.corners, slot.corners[:1]])
+        ax.plot(c[:, 0], c[:, 1], color="0.6", lw=0.5)
+    for m in semantic_map.markings:
+        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color="0.75", lw=0.5)
+    for tag in semantic_map.tags:
+        ax.plot(tag.mTt[0], tag.mTt[1], "s", color="0.3", ms=5)
+    ax.plot(poses[:, 0], poses[:, 1], color="tab:blue", lw=1.0)
+    for s in steps[1:]:
+        x, y, yaw = s.tag
+        ax.plot(x, y, "s", color="red", ms=7)
+        ax.annotate(
+            "",
+            (x + 2.0 * math.cos(yaw), y + 2.0 * math.sin(yaw)),
+            (x, y),
+            arrowprops={"arrowstyle": "->", "color": "red"},
+        )
+        ax.text(x + 0.8, y + 0.8, str(s.count), color="red", fontsize=9, weight="bold")
+    ax.set_aspect("equal")
+    ax.set_title("proposed tags (red, in order; grey: the map's)")
+    ks = [s.count for s in steps]
+    bx.plot(ks, [s.worst_m for s in steps], "o-", label="greedy: worst")
+    bx.plot(ks, [s.p95_m for s in steps], "o--", label="greedy: 95th percentile")
+    bx.plot([e.count for e in even], [e.worst_m for e in even], "s-", label="evenly spread: worst")
+    bx.axhline(0.2, color="0.5", lw=0.8, ls=":")
+    bx.set_xlabel("tags added")
+    bx.set_ylabel("filtered position sigma on the route, m")
+    bx.legend()
+    bx.grid(alpha=0.3)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+__all__ = ["plan_tags"]
