@@ -91,6 +91,36 @@ class ObservationSource(StrEnum):
     images = "images"
 
 
+@app.command()
+def demo(
+    out_dir: Annotated[
+        Path, typer.Argument(metavar="[OUT_DIR]", help="Folder for the drives, map and report.")
+    ] = Path("semslam-demo"),
+    preset: Annotated[PresetName, typer.Option(help="World size.")] = PresetName.garage,
+    seed: Annotated[int, typer.Option(help="World seed.")] = 1,
+    config: ConfigOption = None,
+    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+) -> None:
+    """The main job in one command: simulate two drives through one garage, perceive their
+    images, map the first, localize the second with no initial pose, evaluate, report."""
+    from semslam.config import load_config
+    from semslam.pipeline.demo import run_demo
+    from semslam.reporting import print_metrics
+
+    try:
+        results = run_demo(out_dir, load_config(config), preset.value, seed, progress,
+                           log=lambda m: typer.echo(m, err=True))
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    rows: dict[str, object] = {f"map {k}": v for k, v in results["map"].items()}
+    rows.update({f"localization {k}": v for k, v in results["localization"].items()})
+    rows["first pose after (s)"] = results["first_pose_after_s"]
+    rows["mapping / driving (s)"] = f"{results['mapping_s']:.0f} / {results['driving_s']:.0f}"
+    rows["total time (s)"] = results["timings_s"]["total"]
+    rows["report"] = str(out_dir / "report.md")
+    print_metrics("semslam demo", rows, False)
+
+
 @app.command("map")
 def map_command(
     drive: Annotated[Path, typer.Argument(help="Drive folder to map.")],
@@ -438,6 +468,27 @@ def plan_tags_command(
         rows[f"{step['count']} tags{where}"] = f"worst {step['worst_m']:.3f} m{spread}"
     rows["written"] = ", ".join(result["files"])
     print_metrics("semslam plan-tags", rows, False)
+
+
+@app.command()
+def bench(
+    frames: Annotated[int, typer.Option(help="Frames timed per perception stage.")] = 40,
+    large: Annotated[bool, typer.Option(help="Also map the `large` drive (about 7 min).")] = False,
+    config: ConfigOption = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Per-stage timings on a simulated drive (medians, ms) and mapping time against driving
+    time: every speed target in one run."""
+    from semslam.config import load_config
+    from semslam.pipeline.bench import run_bench
+    from semslam.reporting import print_metrics
+
+    try:
+        result = run_bench(load_config(config), frames, large,
+                           log=lambda m: typer.echo(m, err=True))
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_metrics("semslam bench", result, json_output)
 
 
 @app.command("dump-config")

@@ -5,20 +5,75 @@ IDs and painted lines (:class:`~semslam.perception.topview_perception.TopviewPer
 the front camera (column ``front``, camera ``front`` of rig.json) gives tags
 (:func:`~semslam.perception.tags.observe_tags`). A frame without one of the images
 simply has none of those observations; a drive without either column is refused.
+Frames are processed in chunks by ``workers`` processes (each loads the models once).
 """
 
 from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
 
 from semslam.config import SemslamConfig
 from semslam.errors import DriveError
 from semslam.progress import progress_bar
 from semslam.types import FrameObservations
 
+_WORKER: dict[str, Any] = {}
+_CHUNK = 20
+
+
+def _init_worker(folder: str, config_json: str) -> None:
+    import cv2
+
+    from semslam.config import SemslamConfig
+    from semslam.io import Drive
+    from semslam.perception.tags import settings_from_config
+    from semslam.perception.topview_perception import TopviewPerception
+
+    cv2.setNumThreads(1)
+    drive = Drive.open(folder)
+    frames = drive.frames()
+    config = SemslamConfig.model_validate_json(config_json)
+    _WORKER.clear()
+    _WORKER.update(
+        drive=drive,
+        frames=frames,
+        perception=TopviewPerception(spec=drive.rig.topview)
+        if "topview" in frames.images
+        else None,
+        front="front" in frames.images and "front" in drive.rig.cameras,
+        tag_settings=settings_from_config(config),
+    )
+
+
+def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
+    from semslam.perception.tags import observe_tags
+    from semslam.pipeline.detect import read_bgr
+
+    drive, frames = _WORKER["drive"], _WORKER["frames"]
+    perception = _WORKER["perception"]
+    out = []
+    for i in indices:
+        slots, markings, tags = (), (), ()
+        if perception is not None and frames.images["topview"][i]:
+            det = perception.detect(read_bgr(drive.image_path("topview", i)))
+            slots, markings = perception.slot_observations(det), det.markings
+        if _WORKER["front"] and frames.images["front"][i]:
+            image = read_bgr(drive.image_path("front", i))
+            tags = observe_tags(image, drive.rig.cameras["front"], _WORKER["tag_settings"])
+        out.append(FrameObservations(float(frames.t[i]), slots, tags, markings))
+    return out
+
 
 def perceive_drive(
-    drive, config: SemslamConfig, show_progress: bool | None = None
+    drive, config: SemslamConfig, show_progress: bool | None = None, workers: int | None = None
 ) -> list[FrameObservations]:
     """The observations of every frame of ``drive`` from its images.
+
+    Args:
+        workers: processes (default: ``config.simulation.render.workers``; 1 runs here).
 
     Raises:
         DriveError: the drive has no top-view or front images, or an image is missing.
@@ -33,24 +88,22 @@ def perceive_drive(
             f"{drive.folder}: --observations images needs a topview or front image column "
             "in frames.csv (and the front camera in rig.json)"
         )
-    from semslam.perception.tags import observe_tags, settings_from_config
-    from semslam.perception.topview_perception import TopviewPerception
-    from semslam.pipeline.detect import read_bgr
-
-    perception = TopviewPerception(spec=drive.rig.topview) if has_top else None
-    tag_settings = settings_from_config(config)
+    workers = config.simulation.render.workers if workers is None else workers
+    workers = max(1, min(int(workers), os.cpu_count() or 1))
+    chunks = [list(range(k, min(k + _CHUNK, len(frames)))) for k in range(0, len(frames), _CHUNK)]
+    init_args = (os.fspath(Path(drive.folder)), config.model_dump_json())
     out: list[FrameObservations] = []
     with progress_bar(len(frames), "perception", show_progress) as bar:
-        for i, t in enumerate(frames.t):
-            slots, markings, tags = (), (), ()
-            if perception is not None and frames.images["topview"][i]:
-                det = perception.detect(read_bgr(drive.image_path("topview", i)))
-                slots, markings = perception.slot_observations(det), det.markings
-            if has_front and frames.images["front"][i]:
-                image = read_bgr(drive.image_path("front", i))
-                tags = observe_tags(image, drive.rig.cameras["front"], tag_settings)
-            out.append(FrameObservations(float(t), slots, tags, markings))
-            bar.update(1)
+        if workers == 1:
+            _init_worker(*init_args)
+            for chunk in chunks:
+                out.extend(_perceive_frames(chunk))
+                bar.update(len(chunk))
+            return out
+        with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=init_args) as pool:
+            for part in pool.map(_perceive_frames, chunks):
+                out.extend(part)
+                bar.update(len(part))
     return out
 
 

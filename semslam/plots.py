@@ -1,0 +1,229 @@
+"""Pictures a person would rather look at than read (matplotlib, PNG bytes; no file I/O).
+
+- :func:`map_figure`: slots with their IDs, tags, painted lines and 3-sigma corner
+  ellipses (optionally over the true map).
+- :func:`trajectory_figure`: the estimated trajectory over the truth, coloured by error.
+- :func:`error_figure`: position error and 3-sigma bound over time, with the status.
+- :func:`audit_figure`: what became of the slot observations (accepted, reassigned,
+  null hypothesis, pooled), overall and per slot.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections import Counter
+from collections.abc import Sequence
+
+import numpy as np
+
+from semslam.geometry import FloatArray
+from semslam.types import SemanticMap
+
+STATUS_COLOURS = {
+    "tracking": "#2ca02c",
+    "coasting": "#ffbf00",
+    "relocalized": "#1f77b4",
+    "initializing": "#9467bd",
+    "lost": "#d62728",
+}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> bytes:
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _ellipse(mean: FloatArray, cov: FloatArray, k: float = 3.0, n: int = 40) -> FloatArray:
+    w, v = np.linalg.eigh(np.asarray(cov, float))
+    a = np.linspace(0.0, 2 * math.pi, n)
+    circle = np.stack([np.cos(a), np.sin(a)], axis=1) * k * np.sqrt(np.maximum(w, 0.0))
+    return np.asarray(mean, float) + circle @ v.T
+
+
+def map_figure(
+    semantic_map: SemanticMap, truth: SemanticMap | None = None, title: str = "map"
+) -> bytes:
+    """Slots (blue, with labels), tags (red), lines (grey), 3-sigma corner ellipses (x10,
+    orange) and, if given, the true slots underneath (light green)."""
+    plt = _plt()
+    pts = [s.corners for s in semantic_map.slots] + [np.array([[0.0, 0.0]])]
+    span = np.ptp(np.concatenate(pts), axis=0)
+    aspect = (span[1] + 10) / max(span[0] + 10, 1.0)
+    fig, ax = plt.subplots(figsize=(14, max(4.0, 14 * aspect)), dpi=100)
+    if truth is not None:
+        for s in truth.slots:
+            c = np.vstack([s.corners, s.corners[:1]])
+            ax.plot(c[:, 0], c[:, 1], color="#a6dba0", lw=2.5, zorder=1)
+    for m in semantic_map.markings:
+        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color="0.55", lw=0.8, zorder=2)
+    for s in semantic_map.slots:
+        c = np.vstack([s.corners, s.corners[:1]])
+        ax.plot(c[:, 0], c[:, 1], color="#1f4e9c", lw=0.9, zorder=3)
+        for corner, cov in zip(s.corners, s.corner_covariances, strict=True):
+            e = _ellipse(corner, np.asarray(cov) * 100.0)  # 3 sigma, drawn x10
+            ax.plot(e[:, 0], e[:, 1], color="#ff7f0e", lw=0.6, zorder=4)
+        if s.label:
+            centre = s.corners.mean(axis=0)
+            ax.text(
+                centre[0],
+                centre[1],
+                s.label,
+                fontsize=6,
+                ha="center",
+                va="center",
+                color="#1f4e9c",
+                alpha=0.4 + 0.6 * s.label_confidence,
+                zorder=5,
+            )
+    for t in semantic_map.tags:
+        x, y, yaw = t.mTt
+        ax.plot(x, y, "s", color="#d62728", ms=6, zorder=6)
+        ax.annotate(
+            "",
+            (x + 1.5 * math.cos(yaw), y + 1.5 * math.sin(yaw)),
+            (x, y),
+            arrowprops={"arrowstyle": "->", "color": "#d62728"},
+            zorder=6,
+        )
+        ax.text(x + 0.6, y + 0.6, str(t.tag_id), fontsize=7, color="#d62728", zorder=6)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, m")
+    ax.set_ylabel("y, m")
+    ax.set_title(
+        f"{title}: {len(semantic_map.slots)} slots, {len(semantic_map.tags)} tags, "
+        f"{len(semantic_map.markings)} lines (corner ellipses: 3 sigma, drawn x10"
+        + ("; green: truth)" if truth is not None else ")")
+    )
+    return _png(fig)
+
+
+def trajectory_figure(
+    estimate: FloatArray,
+    truth: FloatArray,
+    error: FloatArray,
+    semantic_map: SemanticMap | None = None,
+    title: str = "trajectory",
+) -> bytes:
+    """The estimated positions (N, 2+) coloured by position error (m), over the true ones
+    (N, 2+, grey) and the map's slots."""
+    plt = _plt()
+    from matplotlib.collections import LineCollection
+
+    estimate, truth = np.asarray(estimate, float), np.asarray(truth, float)
+    span = np.ptp(truth[:, :2], axis=0)
+    fig, ax = plt.subplots(figsize=(14, max(4.0, 14 * (span[1] + 10) / (span[0] + 10))), dpi=100)
+    if semantic_map is not None:
+        for s in semantic_map.slots:
+            c = np.vstack([s.corners, s.corners[:1]])
+            ax.plot(c[:, 0], c[:, 1], color="0.8", lw=0.6)
+    ax.plot(truth[:, 0], truth[:, 1], color="0.4", lw=3.0, alpha=0.4, label="truth")
+    seg = np.stack([estimate[:-1, :2], estimate[1:, :2]], axis=1)
+    hi = max(float(np.percentile(error, 99)), 0.05)
+    lc = LineCollection(seg, cmap="plasma", norm=plt.Normalize(0.0, hi), linewidths=1.8)
+    lc.set_array(np.asarray(error, float)[1:])
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, fraction=0.025, label="position error, m")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper right")
+    ax.set_xlabel("x, m")
+    ax.set_ylabel("y, m")
+    ax.set_title(title)
+    return _png(fig)
+
+
+def error_figure(
+    t: FloatArray,
+    error: FloatArray,
+    sigma: FloatArray,
+    status: Sequence[str],
+    title: str = "position error over time",
+) -> bytes:
+    """Position error (m) and the filter's 3-sigma bound over time, the status as a
+    coloured band underneath."""
+    plt = _plt()
+    t, error, sigma = (np.asarray(v, float) for v in (t, error, sigma))
+    fig, (ax, band) = plt.subplots(
+        2, 1, figsize=(14, 4.5), dpi=100, sharex=True, gridspec_kw={"height_ratios": [5, 1]}
+    )
+    ax.plot(t, error, color="#1f77b4", lw=1.0, label="position error")
+    ax.plot(t, 3 * sigma, color="#ff7f0e", lw=0.8, ls="--", label="3 sigma (reported)")
+    ax.set_ylabel("m")
+    ax.set_ylim(0, max(float(np.percentile(error, 99.5)) * 1.3, 0.05))
+    ax.legend(loc="upper right")
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    codes = {name: k for k, name in enumerate(STATUS_COLOURS)}
+    from matplotlib.colors import ListedColormap
+
+    band.imshow(
+        np.array([[codes.get(s, 0) for s in status]]),
+        aspect="auto",
+        cmap=ListedColormap(list(STATUS_COLOURS.values())),
+        vmin=-0.5,
+        vmax=len(STATUS_COLOURS) - 0.5,
+        extent=(t[0], t[-1], 0, 1),
+    )
+    band.set_yticks([])
+    band.set_xlabel("time, s")
+    counts = Counter(status)
+    band.set_title(
+        "  ".join(f"{k}: {counts.get(k, 0)}" for k in STATUS_COLOURS), fontsize=8, loc="left"
+    )
+    return _png(fig)
+
+
+def audit_figure(
+    audit_rows: Sequence[dict], per_slot: Sequence[dict], title: str = "association audit"
+) -> bytes:
+    """The fate of every slot observation: totals over the drive (the rows of
+    ``MAP.audit.jsonl``) and per mapped slot (``MAP.audit.json``'s ``slots``, sorted by
+    observations): accepted, went to another slot, left to the null hypothesis."""
+    plt = _plt()
+    statuses = ("accepted", "reassigned", "null", "pooled")
+    colours = ("#2ca02c", "#1f77b4", "#d62728", "#bbbbbb")
+    totals = Counter(r.get("status") for r in audit_rows)
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(14, 4), dpi=100, gridspec_kw={"width_ratios": [1, 4]}
+    )
+    ax.bar(range(len(statuses)), [totals.get(s, 0) for s in statuses], color=colours)
+    ax.set_xticks(range(len(statuses)), statuses, fontsize=8)
+    ax.set_title("all slot observations")
+    for k, s in enumerate(statuses):
+        ax.text(k, totals.get(s, 0), str(totals.get(s, 0)), ha="center", va="bottom", fontsize=8)
+    parts = (("accepted", "#2ca02c"), ("went_to_other_slot", "#1f77b4"), ("null", "#d62728"))
+    counts = np.array([[len(s.get(k, ())) for k, _ in parts] for s in per_slot], float)
+    counts = counts.reshape(-1, len(parts))
+    order = np.argsort(-counts.sum(axis=1), kind="stable")
+    bottom = np.zeros(len(order))
+    for k, (name, colour) in enumerate(parts):
+        h = counts[order, k]
+        bx.bar(
+            np.arange(len(order)),
+            h,
+            bottom=bottom,
+            color=colour,
+            width=1.0,
+            label=name.replace("_", " "),
+        )
+        bottom += h
+    bx.set_xlabel("mapped slot (by number of observations)")
+    bx.set_ylabel("observations")
+    bx.legend(loc="upper right")
+    bx.set_title(title)
+    return _png(fig)
+
+
+__all__ = ["audit_figure", "error_figure", "map_figure", "trajectory_figure"]
