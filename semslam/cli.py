@@ -491,6 +491,40 @@ def bench(
     print_metrics("semslam bench", result, json_output)
 
 
+import_app = typer.Typer(help="Turn recordings of other tools into semslam drive folders.",
+                         no_args_is_help=True)
+app.add_typer(import_app, name="import")
+
+
+@import_app.command("garage-bev")
+def import_garage_bev_command(
+    src: Annotated[Path, typer.Argument(metavar="SRC", help="The garage-bev-drive folder.")],
+    out_dir: Annotated[Path, typer.Argument(metavar="OUT", help="Drive folder to write.")],
+    crop_rows: Annotated[
+        int, typer.Option(help="Mask rows ignored at the top and bottom (less reliable).")
+    ] = 300,
+    every: Annotated[int, typer.Option(help="Use every n-th mask (quick looks).")] = 1,
+    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+) -> None:
+    """A real drive of bird's-eye semantic masks + odometry (3D-SMLoc's garage) as a drive
+    folder: odometry, line observations from the slot-line masks (cached), the hand-made
+    vector map, and the mapping settings for it (map with `--observations cached
+    --config OUT/config.json`)."""
+    from dataclasses import asdict
+
+    from semslam.pipeline.import_bev import import_garage_bev
+    from semslam.reporting import print_metrics
+
+    try:
+        summary = import_garage_bev(src, out_dir, crop_rows=crop_rows, every=every,
+                                    show_progress=progress)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_metrics("semslam import garage-bev",
+                  {k: str(v) if isinstance(v, Path) else v for k, v in asdict(summary).items()},
+                  False)
+
+
 @app.command("dump-config")
 def dump_config(config: ConfigOption = None) -> None:
     """Print the configuration in force (defaults, then --config, then SEMSLAM_ variables)."""

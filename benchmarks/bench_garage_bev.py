@@ -1,0 +1,187 @@
+"""Real garage drive: a map of the painted slot lines against the hand-made vector map.
+
+Imports ``../shared/realdata/garage-bev-drive`` as a drive folder (masks -> marking
+observations, odometry from the recorded poses), maps it twice with the real command
+(``semslam map --optimizer none``: observations placed by odometry; ``semslam map``: the
+factor graph with max-mixture line association) and compares both with the vector map,
+both ways (``semslam.evaluation.line_map``). A third row places the same detections by
+the recorded poses themselves (no semslam odometry) and merges them like
+``--optimizer none``: it shows what the odometry derivation loses.
+
+    PYTHONPATH=. python benchmarks/bench_garage_bev.py [--work DIR] [--png out.png]
+        [--json out.json] [--radius 5] [--every 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _common import report, run_semslam
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_SRC = REPO.parent / "shared" / "realdata" / "garage-bev-drive"
+
+
+def segments_of(map_path: Path) -> np.ndarray:
+    from semslam.io import load_map
+
+    m = load_map(map_path)
+    return np.array([[k.a, k.b] for k in m.markings], dtype=float).reshape(-1, 2, 2)
+
+
+def recorded_pose_map(drive: Path, src: Path, config) -> np.ndarray:
+    """The detections placed by the recorded poses (moved to the drive's vehicle frame) and
+    merged as ``--optimizer none`` merges them."""
+    import math
+
+    from semslam.geometry import transform_points
+    from semslam.io import Drive
+    from semslam.io.garage_bev import open_garage_bev
+    from semslam.mapping.markings import merge_marking_observations
+    from semslam.pipeline.import_bev import move_poses
+
+    d = Drive.open(drive)
+    rec = open_garage_bev(src)
+    source = d.info.source
+    poses = move_poses(rec.odometry_poses, source["vehicle_origin_m"],
+                       math.radians(source["heading_offset_deg"]))
+    cfg = config.mapping
+    segs, widths, conf = [], [], []
+    for frame in d.observations("cached"):
+        k = int(np.argmin(np.abs(rec.odometry_t - frame.t)))
+        for o in frame.markings:
+            e = np.array([o.vA, o.vB])
+            if o.confidence < cfg.marking_min_confidence or np.linalg.norm(e[1] - e[0]) < (
+                cfg.marking_min_length
+            ):
+                continue
+            segs.append(transform_points(poses[k], e))
+            widths.append(o.width)
+            conf.append(o.confidence)
+    marks = merge_marking_observations(
+        np.array(segs), np.array(widths), np.array(conf),
+        angle_tolerance_deg=cfg.marking_angle_tolerance_deg, min_support=cfg.marking_min_support,
+        min_length=cfg.marking_min_length)
+    return np.array([[m.a, m.b] for m in marks]).reshape(-1, 2, 2)
+
+
+def draw(png: Path, reference: np.ndarray, maps: dict[str, np.ndarray], path: np.ndarray,
+         window: tuple[float, float, float, float] | None = None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    fig, axes = plt.subplots(len(maps), 1, figsize=(22, 7 * len(maps)), squeeze=False)
+    for ax, (name, segs) in zip(axes[:, 0], maps.items(), strict=True):
+        ax.plot(path[:, 0], path[:, 1], color="0.8", lw=0.5)
+        ax.add_collection(LineCollection(reference, colors="k", linewidths=1.2))
+        ax.add_collection(LineCollection(segs, colors="r", linewidths=0.8))
+        ax.set_title(f"{name}: vector map black, mapped red")
+        ax.set_aspect("equal")
+        if window:
+            ax.set_xlim(window[0], window[1])
+            ax.set_ylim(window[2], window[3])
+        else:
+            ax.autoscale()
+    fig.tight_layout()
+    fig.savefig(png, dpi=60)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--src", type=Path, default=DEFAULT_SRC)
+    parser.add_argument("--work", type=Path, help="keep the drive and maps here")
+    parser.add_argument("--radius", type=float, default=5.0, help="area the drive saw, m")
+    parser.add_argument("--every", type=int, default=1, help="every n-th mask only")
+    parser.add_argument("--crop-rows", type=int, default=300)
+    parser.add_argument("--skip-import", action="store_true", help="reuse WORK/drive")
+    parser.add_argument("--config", type=Path, help="extra config instead of the drive's")
+    parser.add_argument("--png", type=Path, help="draw the maps against the vector map")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+
+    from semslam.config import load_config
+    from semslam.evaluation.line_map import compare_line_maps
+    from semslam.io.garage_bev import open_garage_bev, read_vector_map
+    from semslam.pipeline.import_bev import import_garage_bev
+
+    if not args.src.is_dir():
+        raise SystemExit(f"{args.src}: recording not found (../shared/realdata)")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.work or Path(tmp)
+        drive = work / "drive"
+        commands = []
+        imported = None
+        if not args.skip_import:
+            started = time.perf_counter()
+            s = import_garage_bev(args.src, drive, crop_rows=args.crop_rows, every=args.every)
+            imported = {"frames": s.frames, "markings": s.markings,
+                        "vehicle_origin_m": round(s.vehicle_origin_m, 3),
+                        "heading_offset_deg": round(s.heading_offset_deg, 3),
+                        "dead_reckoning_max_m": round(s.dead_reckoning_max_m, 3),
+                        "import_s": round(time.perf_counter() - started, 1)}
+            print(json.dumps(imported), file=sys.stderr, flush=True)
+            commands.append(f"semslam import garage-bev {args.src} {drive}")
+        config = args.config or drive / "config.json"
+        rows = {}
+        maps = {}
+        for name, extra in (("(a) odometry only (--optimizer none)", ["--optimizer", "none"]),
+                            ("(b) semslam map (isam2 + max-mixture)", [])):
+            out = work / ("a.json" if extra else "b.json")
+            cmd = ["map", str(drive), "--observations", "cached", "-o", str(out),
+                   "--config", str(config), "--no-progress", *extra]
+            commands.append("semslam " + " ".join(cmd))
+            run_semslam(cmd)
+            maps[name] = segments_of(out)
+            stats = json.loads(out.read_text())["metadata"]["statistics"]
+            rows[name] = {"mapping_s": stats["mapping_s"], "keyframes": stats["keyframes"]}
+        maps["recorded poses, merged (reference for (a))"] = recorded_pose_map(
+            drive, args.src, load_config(config))
+        rows["recorded poses, merged (reference for (a))"] = {"mapping_s": None,
+                                                              "keyframes": None}
+        reference = read_vector_map(args.src)
+        rec = open_garage_bev(args.src)
+        path = rec.odometry_poses[:, :2]
+        result = {"import": imported, "radius_m": args.radius, "rows": []}
+        lines = ["| map | lines | ref->map median | ref->map p95 | map->ref median | "
+                 "map->ref p95 | ref pts | map pts | within 0.3 m ref/map | mapping s |",
+                 "|---|---|---|---|---|---|---|---|---|---|"]
+        for name, segs in maps.items():
+            c = compare_line_maps(segs, reference, path, radius=args.radius)
+            rm, mr = c.reference_to_map, c.map_to_reference
+            row = {"map": name, **c.to_dict(), **rows[name], "lines_total": len(segs)}
+            result["rows"].append(row)
+            t = rows[name]["mapping_s"]
+            lines.append(
+                f"| {name} | {len(segs)} | {rm.median_m:.3f} | {rm.p95_m:.3f} | "
+                f"{mr.median_m:.3f} | {mr.p95_m:.3f} | {rm.points} | {mr.points} | "
+                f"{rm.within_share:.2f} / {mr.within_share:.2f} | "
+                f"{'-' if t is None else f'{t:.1f}'} |")
+        a, b = result["rows"][0], result["rows"][1]
+        halved = {k: b[k]["p95_m"] <= 0.5 * a[k]["p95_m"]
+                  for k in ("reference_to_map", "map_to_reference")}
+        result["p95_halved"] = halved
+        lines.append("")
+        lines.append(f"(b) halves (a)'s p95: ref->map {halved['reference_to_map']}, "
+                     f"map->ref {halved['map_to_reference']}")
+        lines.append("")
+        lines.append("Commands:")
+        lines += [f"    {c}" for c in commands]
+        if args.png:
+            draw(args.png, reference, maps, path)
+            zoom = args.png.with_name(args.png.stem + "-zoom.png")
+            draw(zoom, reference, maps, path, (-130, -50, 20, 95))
+        report("\n".join(lines), result, args.json)
+
+
+if __name__ == "__main__":
+    main()
