@@ -6,7 +6,12 @@ observations, odometry from the recorded poses), maps it twice with the real com
 factor graph with max-mixture line association) and compares both with the vector map,
 both ways (``semslam.evaluation.line_map``). A third row places the same detections by
 the recorded poses themselves (no semslam odometry) and merges them like
-``--optimizer none``: it shows what the odometry derivation loses.
+``--optimizer none``: it shows what the odometry derivation loses (since the importer's
+tracked odometry, next to nothing: (a) dead-reckons to within 4 cm of the recorded poses).
+
+Targets, both ways (reference -> map and map -> reference): (b)'s 95th percentile at most
+half of (a)'s (the issue's target), and (b) better than the recorded-pose placement in
+median and 95th percentile.
 
     PYTHONPATH=. python benchmarks/bench_garage_bev.py [--work DIR] [--png out.png]
         [--json out.json] [--radius 5] [--every 1]
@@ -44,13 +49,16 @@ def recorded_pose_map(drive: Path, src: Path, config) -> np.ndarray:
     from semslam.io import Drive
     from semslam.io.garage_bev import open_garage_bev
     from semslam.mapping.markings import merge_marking_observations
-    from semslam.pipeline.import_bev import move_poses
+    from semslam.pipeline.import_bev import move_poses, track_odometry
 
     d = Drive.open(drive)
     rec = open_garage_bev(src)
     source = d.info.source
     poses = move_poses(rec.odometry_poses, source["vehicle_origin_m"],
                        math.radians(source["heading_offset_deg"]))
+    # the drive's detections are in the vehicle frame turned by the slip angle (the heading
+    # its odometry.csv carries): the same turn here puts them back on the recorded body pose
+    poses[:, 2] = track_odometry(rec.odometry_t, poses)[2]
     cfg = config.mapping
     segs, widths, conf = [], [], []
     for frame in d.observations("cached"):
@@ -128,6 +136,9 @@ def main() -> None:
                         "vehicle_origin_m": round(s.vehicle_origin_m, 3),
                         "heading_offset_deg": round(s.heading_offset_deg, 3),
                         "dead_reckoning_max_m": round(s.dead_reckoning_max_m, 3),
+                        "dead_reckoning_open_loop_max_m": round(
+                            s.dead_reckoning_open_loop_max_m, 3),
+                        "slip_angle_max_deg": round(s.slip_angle_max_deg, 3),
                         "import_s": round(time.perf_counter() - started, 1)}
             print(json.dumps(imported), file=sys.stderr, flush=True)
             commands.append(f"semslam import garage-bev {args.src} {drive}")
@@ -144,10 +155,9 @@ def main() -> None:
             maps[name] = segments_of(out)
             stats = json.loads(out.read_text())["metadata"]["statistics"]
             rows[name] = {"mapping_s": stats["mapping_s"], "keyframes": stats["keyframes"]}
-        maps["recorded poses, merged (reference for (a))"] = recorded_pose_map(
+        maps["(r) recorded poses, merged"] = recorded_pose_map(
             drive, args.src, load_config(config))
-        rows["recorded poses, merged (reference for (a))"] = {"mapping_s": None,
-                                                              "keyframes": None}
+        rows["(r) recorded poses, merged"] = {"mapping_s": None, "keyframes": None}
         reference = read_vector_map(args.src)
         rec = open_garage_bev(args.src)
         path = rec.odometry_poses[:, :2]
@@ -166,13 +176,25 @@ def main() -> None:
                 f"{mr.median_m:.3f} | {mr.p95_m:.3f} | {rm.points} | {mr.points} | "
                 f"{rm.within_share:.2f} / {mr.within_share:.2f} | "
                 f"{'-' if t is None else f'{t:.1f}'} |")
-        a, b = result["rows"][0], result["rows"][1]
-        halved = {k: b[k]["p95_m"] <= 0.5 * a[k]["p95_m"]
-                  for k in ("reference_to_map", "map_to_reference")}
+        a, b, r = result["rows"]
+        ways = ("reference_to_map", "map_to_reference")
+        halved = {k: b[k]["p95_m"] <= 0.5 * a[k]["p95_m"] for k in ways}
+        beats = {k: b[k]["p95_m"] < r[k]["p95_m"] and b[k]["median_m"] < r[k]["median_m"]
+                 for k in ways}
         result["p95_halved"] = halved
+        result["better_than_recorded"] = beats
         lines.append("")
-        lines.append(f"(b) halves (a)'s p95: ref->map {halved['reference_to_map']}, "
-                     f"map->ref {halved['map_to_reference']}")
+        lines.append("Targets (ref->map, map->ref):")
+        lines.append(
+            f"- (b) p95 <= half of (a)'s: {b[ways[0]]['p95_m']:.3f} <= "
+            f"{0.5 * a[ways[0]]['p95_m']:.3f} {halved[ways[0]]}, {b[ways[1]]['p95_m']:.3f} <= "
+            f"{0.5 * a[ways[1]]['p95_m']:.3f} {halved[ways[1]]}")
+        lines.append(
+            f"- (b) median and p95 below (r)'s: ref->map {b[ways[0]]['median_m']:.3f} / "
+            f"{b[ways[0]]['p95_m']:.3f} vs {r[ways[0]]['median_m']:.3f} / "
+            f"{r[ways[0]]['p95_m']:.3f} {beats[ways[0]]}; map->ref "
+            f"{b[ways[1]]['median_m']:.3f} / {b[ways[1]]['p95_m']:.3f} vs "
+            f"{r[ways[1]]['median_m']:.3f} / {r[ways[1]]['p95_m']:.3f} {beats[ways[1]]}")
         lines.append("")
         lines.append("Commands:")
         lines += [f"    {c}" for c in commands]
