@@ -1,0 +1,197 @@
+"""Marking points on ps2.0 top views with a DMPR-PS-style CNN (onnxruntime only).
+
+The network (``models/marking_points.onnx``, trained by ``tools/train_marking_points.py``,
+see ``models/marking_points.md``) takes the top view resized to a square ``(1, S, S, 3)``
+uint8 BGR image and returns a ``(1, 6, G, G)`` grid: per cell the confidence that a
+marking point lies in it, the probability that it is an L junction, the point's x and y
+offset inside the cell (0-1) and the cosine and sine of its direction (image coordinates,
+``atan2(dv, du)``, from the junction into the slot along the separator).
+
+Non-square images (for example real garage top views of 600 rows x 480 columns) are
+padded with black to a centred square before the resize, so the pixel scale stays the
+same on both axes; the points come back in the original image's pixels. Pixel
+coordinates follow OpenCV's convention (pixel centres at integers).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from semslam.errors import PerceptionError
+from semslam.geometry import FloatArray
+from semslam.perception import onnx_model
+from semslam.types import JunctionShape
+
+DEFAULT_THRESHOLD = 0.7
+"""Confidence above which a grid cell is a marking point: the best F1 on simulated
+validation worlds 100-149 (neither trained on nor the benchmark's 0-99; see
+``models/marking_points.md``)."""
+
+NMS_RADIUS_PX = 10.0
+"""Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""
+
+
+@dataclass(frozen=True, eq=False)
+class MarkingPoint:
+    """One detected marking point (a slot entrance corner).
+
+    Attributes:
+        uv: (2,) position, pixels, OpenCV convention (u right, v down).
+        direction: radians in image coordinates, ``atan2(dv, du)``, of the separator line
+            from the junction into the slot (DMPR-PS convention).
+        shape: T or L junction.
+        confidence: the network's confidence in [0, 1].
+    """
+
+    uv: FloatArray
+    direction: float
+    shape: JunctionShape
+    confidence: float
+
+
+def decode_grid(
+    grid: np.ndarray, image_size: int, threshold: float = DEFAULT_THRESHOLD
+) -> list[MarkingPoint]:
+    """Marking points from one network output grid.
+
+    Args:
+        grid: (6, G, G) or (1, 6, G, G): confidence, P(L junction), x offset, y offset
+            (0-1 inside the cell), cos and sin of the direction.
+        image_size: side of the square image the grid covers, pixels; cell ``(r, c)`` and
+            offsets ``(ox, oy)`` decode to ``u = (c + ox) * image_size / G - 0.5`` (and ``v``
+            alike), the OpenCV pixel centre of that position.
+        threshold: minimum confidence.
+
+    Returns:
+        Points by decreasing confidence, none two closer than :data:`NMS_RADIUS_PX`
+        (scaled by ``image_size / 600``).
+    """
+    g = np.asarray(grid, dtype=np.float64)
+    if g.ndim == 4 and g.shape[0] == 1:
+        g = g[0]
+    if g.ndim != 3 or g.shape[0] != 6 or g.shape[1] != g.shape[2]:
+        raise PerceptionError(f"marking-point grid: expected shape (6, G, G), got {g.shape}")
+    n = g.shape[1]
+    cell = float(image_size) / n
+    rows, cols = np.nonzero(g[0] >= threshold)
+    if not len(rows):
+        return []
+    conf = np.clip(g[0, rows, cols], 0.0, 1.0)
+    u = (cols + np.clip(g[2, rows, cols], 0.0, 1.0)) * cell - 0.5
+    v = (rows + np.clip(g[3, rows, cols], 0.0, 1.0)) * cell - 0.5
+    direction = np.arctan2(g[5, rows, cols], g[4, rows, cols])
+    is_l = g[1, rows, cols] >= 0.5
+    order = np.argsort(-conf, kind="stable")
+    radius = NMS_RADIUS_PX * float(image_size) / 600.0
+    kept: list[int] = []
+    for k in order:
+        if all(math.hypot(u[k] - u[m], v[k] - v[m]) >= radius for m in kept):
+            kept.append(int(k))
+    return [
+        MarkingPoint(
+            np.array([u[k], v[k]]),
+            float(direction[k]),
+            JunctionShape.L if is_l[k] else JunctionShape.T,
+            float(conf[k]),
+        )
+        for k in kept
+    ]
+
+
+def check_topview(image: object) -> np.ndarray:
+    """``image`` as a uint8 (H, W, 3) array, or a one-line PerceptionError."""
+    if not isinstance(image, np.ndarray):
+        raise PerceptionError(f"top view: expected a numpy array, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise PerceptionError(f"top view: expected dtype uint8, got {image.dtype}")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise PerceptionError(f"top view: expected shape (H, W, 3) BGR, got {image.shape}")
+    if min(image.shape[:2]) < 16:
+        raise PerceptionError(f"top view: image too small {image.shape[:2]}")
+    return image
+
+
+class MarkingPointDetector:
+    """The marking-point CNN on one onnxruntime thread.
+
+    Args:
+        model_path: the ONNX file; default the shipped ``marking_points.onnx``.
+        threshold: minimum confidence of a point.
+
+    Raises:
+        PerceptionError: the model is missing or not loadable, or its input is not
+            ``(1, S, S, 3)`` uint8.
+    """
+
+    def __init__(
+        self, model_path: str | os.PathLike[str] | None = None, threshold: float = DEFAULT_THRESHOLD
+    ) -> None:
+        path = (
+            Path(model_path)
+            if model_path is not None
+            else onnx_model.model_path("marking_points.onnx")
+        )
+        self.path = path
+        self.threshold = float(threshold)
+        self._session = onnx_model.load_session(path)
+        inp = self._session.get_inputs()[0]
+        shape = list(inp.shape)
+        if (
+            len(shape) != 4
+            or not all(isinstance(d, int) for d in shape[1:])
+            or shape[1] != shape[2]
+            or shape[3] != 3
+            or inp.type != "tensor(uint8)"
+        ):
+            raise PerceptionError(
+                f"{path}: expected input (1, S, S, 3) uint8, got {shape} {inp.type}"
+            )
+        self.input_size = int(shape[1])
+        self._input_name = inp.name
+
+    def grid(self, topview_bgr: np.ndarray) -> tuple[np.ndarray, int, tuple[int, int]]:
+        """The raw (6, G, G) grid, the padded square side and the (top, left) padding."""
+        import cv2
+
+        img = check_topview(topview_bgr)
+        h, w = img.shape[:2]
+        side = max(h, w)
+        top, left = (side - h) // 2, (side - w) // 2
+        if h != w:
+            img = cv2.copyMakeBorder(
+                img, top, side - h - top, left, side - w - left, cv2.BORDER_CONSTANT, value=0
+            )
+        s = self.input_size
+        if side != s:
+            interp = cv2.INTER_AREA if side > s else cv2.INTER_LINEAR
+            img = cv2.resize(img, (s, s), interpolation=interp)
+        x = np.ascontiguousarray(img)[None]
+        out = self._session.run(None, {self._input_name: x})[0]
+        return np.asarray(out[0]), side, (top, left)
+
+    def detect(self, topview_bgr: np.ndarray) -> list[MarkingPoint]:
+        """Marking points in ``topview_bgr`` (uint8 BGR, H x W x 3), in its pixels."""
+        g, side, (top, left) = self.grid(topview_bgr)
+        pts = decode_grid(g, side, self.threshold)
+        h, w = topview_bgr.shape[:2]
+        out = []
+        for p in pts:
+            uv = p.uv - np.array([left, top], float)
+            if -0.5 <= uv[0] <= w - 0.5 and -0.5 <= uv[1] <= h - 0.5:
+                out.append(MarkingPoint(uv, p.direction, p.shape, p.confidence))
+        return out
+
+
+__all__ = [
+    "DEFAULT_THRESHOLD",
+    "NMS_RADIUS_PX",
+    "MarkingPoint",
+    "MarkingPointDetector",
+    "check_topview",
+    "decode_grid",
+]

@@ -1,0 +1,252 @@
+"""Parking slots from marking points, the way DMPR-PS and TiEV pair them.
+
+Two marking points form a slot entrance when
+
+* their distance fits a kind: perpendicular 2.2-3.8 m, slanted 2.2-3.9 m (measured along
+  the entrance), parallel 5.5-7.5 m (the simulator draws 5.6-6.4 m, the real ps2.0
+  samples 5.7-6.4 m; the lower bound stays above two perpendicular slots, 4.8-5.4 m, so a
+  missed middle point does not invent a parallel slot);
+* both directions (the separators, into the slot) are roughly perpendicular to the
+  entrance (perpendicular, parallel), or parallel to each other at 30-75 deg to it
+  (slanted), and point to the same side of it. An L point whose direction runs along
+  the entrance toward its partner (the ps2.0 labelling of some end points, DMPR-PS's
+  "l_down") takes its partner's separator;
+* no third point lies on or near the segment between them.
+
+Depth is a prior per kind (perpendicular 5.0 m, parallel 2.5 m; slanted: a 5.0 m
+separator along the points' mean direction), as the simulated garages and ps2.0 have
+it. Where two candidates share a point and overlap (the same side of it along the
+entrance), the less confident one goes. Corners are ordered entrance-left,
+entrance-right, rear-right, rear-left as seen from the aisle looking into the slot
+(``[i, j]`` of the ps2.0 / simulator labels are entrance-left, entrance-right).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from semslam.geometry import FloatArray
+from semslam.perception.marking_points import DEFAULT_THRESHOLD, MarkingPoint, MarkingPointDetector
+from semslam.rig import TopviewSpec
+from semslam.types import JunctionShape, SlotKind, SlotObservation
+
+
+@dataclass(frozen=True)
+class SlotRules:
+    """Geometry of an acceptable slot (metres, degrees)."""
+
+    perpendicular_width: tuple[float, float] = (2.2, 3.8)
+    slanted_width: tuple[float, float] = (2.2, 3.9)
+    parallel_width: tuple[float, float] = (5.5, 7.5)
+    perpendicular_depth: float = 5.0
+    parallel_depth: float = 5.0 / 2.0
+    slanted_separator: float = 5.0
+    angle_tolerance_deg: float = 15.0  # separator off the expected angle
+    slanted_angle_deg: tuple[float, float] = (30.0, 75.0)
+    third_point_distance_m: float = 0.5  # from the entrance segment
+
+
+@dataclass(frozen=True, eq=False)
+class DetectedSlot:
+    """A slot inferred from two marking points.
+
+    Attributes:
+        i, j: indices into the points list of the entrance-left and entrance-right point.
+        uv_corners: (4, 2) pixels: entrance-left, entrance-right, rear-right, rear-left.
+        kind: perpendicular, parallel or slanted.
+        angle_deg: angle between the entrance (left to right) and the separator.
+        confidence: in [0, 1], from the points' confidences and the geometric fit.
+    """
+
+    i: int
+    j: int
+    uv_corners: FloatArray
+    kind: SlotKind
+    angle_deg: float
+    confidence: float
+
+
+def _unit(a: float) -> np.ndarray:
+    return np.array([math.cos(a), math.sin(a)])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _third_point(uv: np.ndarray, a: int, b: int, limit_px: float) -> bool:
+    """Whether a point other than a, b lies near the open segment a-b."""
+    pa, pb = uv[a], uv[b]
+    e = pb - pa
+    length2 = float(e @ e)
+    for k in range(len(uv)):
+        if k in (a, b):
+            continue
+        t = float((uv[k] - pa) @ e) / length2
+        if 0.0 < t < 1.0 and abs(_cross(e, uv[k] - pa)) / math.sqrt(length2) < limit_px:
+            return True
+    return False
+
+
+def _candidate(
+    points: list[MarkingPoint], uv: np.ndarray, a: int, b: int, spec: TopviewSpec, rules: SlotRules
+) -> DetectedSlot | None:
+    pa, pb = uv[a], uv[b]
+    dist_px = float(np.hypot(*(pb - pa)))
+    if dist_px < 1e-6:
+        return None
+    width = dist_px * spec.metres_per_px
+    e = (pb - pa) / dist_px
+    sa, sb = _unit(points[a].direction), _unit(points[b].direction)
+    tol = math.radians(rules.angle_tolerance_deg)
+    along = math.cos(tol)
+    # an L pointing along the entrance at its partner takes the partner's separator
+    a_along = points[a].shape is JunctionShape.L and float(sa @ e) > along
+    b_along = points[b].shape is JunctionShape.L and float(-sb @ e) > along
+    if a_along and b_along:
+        return None
+    if a_along:
+        sa = sb
+    if b_along:
+        sb = sa
+    # both separators on the same side of the entrance line
+    side_a, side_b = _cross(e, sa), _cross(e, sb)
+    if side_a * side_b <= 0.0:
+        return None
+    kind: SlotKind | None = None
+    perp_err = max(abs(float(sa @ e)), abs(float(sb @ e)))  # cos of angle to e, 0 = perpendicular
+    if perp_err < math.sin(tol):
+        fit_err = math.degrees(math.asin(min(perp_err, 1.0)))
+        if rules.perpendicular_width[0] <= width <= rules.perpendicular_width[1]:
+            kind = SlotKind.PERPENDICULAR
+        elif rules.parallel_width[0] <= width <= rules.parallel_width[1]:
+            kind = SlotKind.PARALLEL
+    else:
+        between = math.degrees(math.acos(float(np.clip(sa @ sb, -1.0, 1.0))))
+        ang_a = math.degrees(math.acos(min(abs(float(sa @ e)), 1.0)))
+        ang_b = math.degrees(math.acos(min(abs(float(sb @ e)), 1.0)))
+        lo, hi = rules.slanted_angle_deg
+        if (
+            between < rules.angle_tolerance_deg
+            and lo <= ang_a <= hi
+            and lo <= ang_b <= hi
+            and rules.slanted_width[0] <= width <= rules.slanted_width[1]
+        ):
+            kind = SlotKind.SLANTED
+            fit_err = between
+    if kind is None:
+        return None
+    if _third_point(uv, a, b, rules.third_point_distance_m / spec.metres_per_px):
+        return None
+    sep = sa + sb
+    sep /= np.linalg.norm(sep)
+    # into the slot; left of a viewer facing it, in image coordinates (v down)
+    normal = np.array([-e[1], e[0]]) if _cross(e, sep) > 0 else np.array([e[1], -e[0]])
+    left = np.array([normal[1], -normal[0]])
+    el, er = (a, b) if float((pa - pb) @ left) > 0 else (b, a)
+    if kind is SlotKind.SLANTED:
+        depth_vec = sep * rules.slanted_separator / spec.metres_per_px
+    elif kind is SlotKind.PARALLEL:
+        depth_vec = normal * rules.parallel_depth / spec.metres_per_px
+    else:
+        depth_vec = normal * rules.perpendicular_depth / spec.metres_per_px
+    corners = np.array([uv[el], uv[er], uv[er] + depth_vec, uv[el] + depth_vec])
+    entrance = (uv[er] - uv[el]) / dist_px
+    if kind is SlotKind.SLANTED:
+        angle = math.degrees(math.acos(float(np.clip(entrance @ sep, -1.0, 1.0))))
+    else:
+        angle = 90.0
+    fit = math.exp(-0.5 * (fit_err / rules.angle_tolerance_deg * 2.0) ** 2)
+    conf = math.sqrt(points[a].confidence * points[b].confidence) * fit
+    return DetectedSlot(el, er, corners, kind, angle, float(np.clip(conf, 0.0, 1.0)))
+
+
+def infer_slots(
+    points: list[MarkingPoint],
+    spec: TopviewSpec | None = None,
+    rules: SlotRules | None = None,
+    min_confidence: float = 0.0,
+) -> list[DetectedSlot]:
+    """Slots from the marking points of one top view, by decreasing confidence.
+
+    Args:
+        points: detected (or labelled) marking points, pixels of a ``spec`` image.
+        spec: the top-view grid (metres per pixel); default ps2.0.
+        rules: widths, depths and angle tolerances; default :class:`SlotRules`.
+        min_confidence: slots below this are dropped.
+    """
+    spec = spec or TopviewSpec()
+    rules = rules or SlotRules()
+    if len(points) < 2:
+        return []
+    uv = np.array([np.asarray(p.uv, float) for p in points]).reshape(-1, 2)
+    cands = []
+    for a in range(len(points)):
+        for b in range(a + 1, len(points)):
+            c = _candidate(points, uv, a, b, spec, rules)
+            if c is not None and c.confidence >= min_confidence:
+                cands.append(c)
+    cands.sort(key=lambda s: -s.confidence)
+    kept: list[DetectedSlot] = []
+    for c in cands:
+        clash = False
+        for k in kept:
+            for p, q in ((c.i, c.j), (c.j, c.i)):
+                for r, t in ((k.i, k.j), (k.j, k.i)):
+                    # sharing a point and leaving it to the same side along the entrance
+                    if p == r and float((uv[q] - uv[p]) @ (uv[t] - uv[r])) > 0.0:
+                        clash = True
+        if not clash:
+            kept.append(c)
+    return kept
+
+
+def slot_observation(
+    slot: DetectedSlot,
+    spec: TopviewSpec | None = None,
+    label: str | None = None,
+    label_confidence: float = 0.0,
+    corner_sigma: float = 0.1,
+) -> SlotObservation:
+    """``slot`` as a :class:`SlotObservation` with its corners in the vehicle frame."""
+    spec = spec or TopviewSpec()
+    vCorners = spec.pixel_to_vehicle(slot.uv_corners)
+    return SlotObservation(
+        vCorners=vCorners,
+        kind=slot.kind,
+        label=label,
+        label_confidence=float(label_confidence) if label is not None else 0.0,
+        confidence=float(slot.confidence),
+        corner_sigma=float(corner_sigma),
+    )
+
+
+class SlotDetector:
+    """Marking points (the CNN) and the slots they form, for one top view at a time.
+
+    The slots' pixel geometry assumes the top view's scale ``spec.metres_per_px``
+    (ps2.0: 1/60 m per px); non-square images are handled by the point detector.
+    """
+
+    def __init__(
+        self,
+        model_path: str | os.PathLike[str] | None = None,
+        threshold: float = DEFAULT_THRESHOLD,
+        spec: TopviewSpec | None = None,
+        rules: SlotRules | None = None,
+    ) -> None:
+        self.points = MarkingPointDetector(model_path, threshold)
+        self.spec = spec or TopviewSpec()
+        self.rules = rules or SlotRules()
+
+    def detect(self, topview_bgr: np.ndarray) -> tuple[list[MarkingPoint], list[DetectedSlot]]:
+        """The marking points and slots of one uint8 BGR top view."""
+        pts = self.points.detect(topview_bgr)
+        return pts, infer_slots(pts, self.spec, self.rules)
+
+
+__all__ = ["DetectedSlot", "SlotDetector", "SlotRules", "infer_slots", "slot_observation"]

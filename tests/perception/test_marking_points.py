@@ -1,0 +1,138 @@
+"""Marking-point CNN: grid decoding on hand-made tensors, the shipped model's contract,
+bad model files and input, and a loose recall check on rendered held-out views."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from semslam.errors import PerceptionError
+from semslam.perception.marking_points import MarkingPointDetector, decode_grid
+from semslam.perception.onnx_model import model_path
+from semslam.simulation.topview_samples import sample_topviews
+from semslam.types import JunctionShape
+
+G = 16
+
+
+def grid_with(cells) -> np.ndarray:
+    """(6, G, G) grid with points at ``(row, col, conf, p_l, ox, oy, direction)``."""
+    g = np.zeros((6, G, G), np.float32)
+    g[4] = 1.0
+    for r, c, conf, p_l, ox, oy, d in cells:
+        g[:, r, c] = [conf, p_l, ox, oy, math.cos(d), math.sin(d)]
+    return g
+
+
+def test_decode_position_direction_shape():
+    g = grid_with([(3, 5, 0.9, 0.8, 0.5, 0.25, 1.0), (10, 2, 0.7, 0.1, 0.0, 1.0, -2.0)])
+    pts = decode_grid(g[None], 600, 0.5)
+    assert len(pts) == 2
+    a, b = pts  # by decreasing confidence
+    np.testing.assert_allclose(a.uv, [5.5 * 37.5 - 0.5, 3.25 * 37.5 - 0.5])
+    assert a.direction == pytest.approx(1.0, abs=1e-6)
+    assert a.shape is JunctionShape.L and a.confidence == pytest.approx(0.9)
+    np.testing.assert_allclose(b.uv, [2 * 37.5 - 0.5, 11 * 37.5 - 0.5])
+    assert b.direction == pytest.approx(-2.0, abs=1e-6)
+    assert b.shape is JunctionShape.T
+
+
+def test_decode_threshold_and_scale():
+    g = grid_with([(3, 5, 0.4, 0.0, 0.5, 0.5, 0.0)])
+    assert decode_grid(g, 600, 0.5) == []
+    (p,) = decode_grid(g, 320, 0.3)
+    np.testing.assert_allclose(p.uv, [5.5 * 20 - 0.5, 3.5 * 20 - 0.5])
+
+
+def test_decode_suppresses_close_points():
+    # neighbouring cells decoding to points under 10 px apart: the stronger stays
+    g = grid_with([(3, 5, 0.8, 0.0, 0.99, 0.5, 0.0), (3, 6, 0.95, 0.0, 0.01, 0.5, 0.0)])
+    (p,) = decode_grid(g, 600, 0.5)
+    assert p.confidence == pytest.approx(0.95)
+    g = grid_with([(3, 5, 0.8, 0.0, 0.5, 0.5, 0.0), (3, 6, 0.95, 0.0, 0.5, 0.5, 0.0)])
+    assert len(decode_grid(g, 600, 0.5)) == 2
+
+
+def test_decode_rejects_bad_grid():
+    with pytest.raises(PerceptionError):
+        decode_grid(np.zeros((5, G, G)), 600, 0.5)
+
+
+def test_missing_and_corrupt_model(tmp_path):
+    with pytest.raises(PerceptionError, match="not found"):
+        MarkingPointDetector(tmp_path / "nope.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(PerceptionError, match="bad.onnx"):
+        MarkingPointDetector(bad)
+
+
+@pytest.fixture(scope="module")
+def detector() -> MarkingPointDetector:
+    return MarkingPointDetector()
+
+
+@pytest.fixture(scope="module")
+def views():
+    # held-out world seeds (the model never trained on 0-99)
+    return list(sample_topviews(range(0, 3), 2, 4242))
+
+
+def test_shipped_model_exists():
+    assert model_path("marking_points.onnx").is_file()
+
+
+def test_bad_input(detector):
+    with pytest.raises(PerceptionError, match="uint8"):
+        detector.detect(np.zeros((600, 600, 3), np.float32))
+    with pytest.raises(PerceptionError, match="shape"):
+        detector.detect(np.zeros((600, 600), np.uint8))
+
+
+def test_contract_on_rendered_view(detector, views):
+    img = views[0].image
+    pts = detector.detect(img)
+    again = detector.detect(img)
+    assert len(pts) == len(again)
+    for p, q in zip(pts, again, strict=True):
+        np.testing.assert_array_equal(p.uv, q.uv)
+        assert p.direction == q.direction and p.confidence == q.confidence
+    for p in pts:
+        assert p.uv.shape == (2,)
+        assert -0.5 <= p.uv[0] <= 599.5 and -0.5 <= p.uv[1] <= 599.5
+        assert 0.0 <= p.confidence <= 1.0
+        assert -math.pi <= p.direction <= math.pi
+        assert isinstance(p.shape, JunctionShape)
+
+
+def test_non_square_image_padded(detector, views):
+    img = views[0].image[:, 60:540]  # 600 rows x 480 columns
+    full = detector.detect(views[0].image)
+    pts = detector.detect(img)
+    for p in pts:
+        assert -0.5 <= p.uv[0] <= 479.5 and -0.5 <= p.uv[1] <= 599.5
+    # padding back to 600 x 600 restores the geometry: points well inside agree
+    inner = [p for p in full if 120 < p.uv[0] < 480]
+    for p in inner:
+        d = [np.hypot(*(q.uv + [60, 0] - p.uv)) for q in pts]
+        assert d and min(d) < 10.0
+
+
+def test_finds_most_labelled_points(detector, views):
+    found = total = false = 0
+    for s in views:
+        a = s.annotation
+        pts = detector.detect(s.image)
+        uv = np.array([p.uv for p in pts]).reshape(-1, 2)
+        for k in np.nonzero(~a.occluded)[0]:
+            total += 1
+            if len(uv):
+                d = np.hypot(*(uv - a.points[k]).T)
+                found += int(d.min() <= 10.0)
+        for p in pts:
+            false += int(np.hypot(*(a.points - p.uv).T).min(initial=1e9) > 10.0)
+    assert total >= 10
+    assert found >= 0.8 * total
+    assert false <= max(2, 0.2 * total)

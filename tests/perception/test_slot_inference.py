@@ -1,0 +1,123 @@
+"""Slot inference from marking points: hand-made point sets with known answers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from semslam.perception.marking_points import MarkingPoint
+from semslam.perception.slots import DetectedSlot, infer_slots, slot_observation
+from semslam.rig import TopviewSpec
+from semslam.types import JunctionShape, SlotKind
+
+UP = -math.pi / 2  # image direction "up" (v decreasing): atan2(-1, 0)
+DOWN = math.pi / 2
+
+
+def mp(u: float, v: float, direction: float, shape=JunctionShape.T, conf: float = 0.9):
+    return MarkingPoint(np.array([u, v], float), direction, shape, conf)
+
+
+def pairs(slots: list[DetectedSlot]) -> set[tuple[int, int]]:
+    return {(s.i, s.j) for s in slots}
+
+
+def test_perpendicular_slot_corners_and_order():
+    # 150 px = 2.5 m apart, separators pointing up: the slot lies above the entrance
+    pts = [mp(200, 300, UP), mp(350, 300, UP)]
+    (slot,) = infer_slots(pts)
+    assert slot.kind is SlotKind.PERPENDICULAR
+    assert slot.angle_deg == pytest.approx(90.0)
+    # viewer in the aisle faces up: entrance-left is the image-left point
+    assert (slot.i, slot.j) == (0, 1)
+    np.testing.assert_allclose(slot.uv_corners, [[200, 300], [350, 300], [350, 0], [200, 0]])
+    assert 0.0 < slot.confidence <= 0.9 + 1e-9
+
+
+def test_slot_facing_down_swaps_left_and_right():
+    pts = [mp(200, 300, DOWN), mp(350, 300, DOWN)]
+    (slot,) = infer_slots(pts)
+    assert (slot.i, slot.j) == (1, 0)  # facing down, image-right is the viewer's left
+    np.testing.assert_allclose(slot.uv_corners[2:], [[200, 600], [350, 600]])
+
+
+def test_parallel_slot():
+    pts = [mp(100, 300, UP), mp(460, 300, UP)]  # 6 m
+    (slot,) = infer_slots(pts)
+    assert slot.kind is SlotKind.PARALLEL
+    np.testing.assert_allclose(slot.uv_corners[2:], [[460, 150], [100, 150]])
+
+
+def test_slanted_slot():
+    d = math.atan2(-1.0, 1.0)  # up and to the right, 45 deg to the entrance
+    pts = [mp(200, 300, d), mp(410, 300, d)]  # 3.5 m along the entrance
+    (slot,) = infer_slots(pts)
+    assert slot.kind is SlotKind.SLANTED
+    assert slot.angle_deg == pytest.approx(45.0)
+    sep = 5.0 * 60.0 * np.array([math.cos(d), math.sin(d)])
+    np.testing.assert_allclose(slot.uv_corners[3], np.array([200.0, 300.0]) + sep)
+
+
+def test_slanted_needs_parallel_separators():
+    pts = [mp(200, 300, math.atan2(-1.0, 1.0)), mp(410, 300, math.atan2(-1.0, -1.0))]
+    assert infer_slots(pts) == []
+
+
+def test_third_point_on_the_line_rejects_the_pair():
+    # A-B and B-C are 3 m slots; A-C (6 m) would be parallel but B lies between them
+    pts = [mp(100, 300, UP), mp(280, 300, UP), mp(460, 300, UP)]
+    slots = infer_slots(pts)
+    assert pairs(slots) == {(0, 1), (1, 2)}
+    assert all(s.kind is SlotKind.PERPENDICULAR for s in slots)
+    # a middle point that forms no slot itself still blocks A-C
+    pts[1] = mp(280, 300, 0.0)
+    assert infer_slots(pts) == []
+
+
+def test_wrong_side_directions_rejected():
+    assert infer_slots([mp(200, 300, UP), mp(350, 300, DOWN)]) == []
+
+
+def test_width_out_of_range_rejected():
+    assert infer_slots([mp(200, 300, UP), mp(300, 300, UP)]) == []  # 1.67 m
+    assert infer_slots([mp(100, 300, UP), mp(400, 300, UP)]) == []  # 5 m: neither kind
+    assert infer_slots([mp(200, 300, 0.3 + UP), mp(350, 300, UP)]) == []  # 17 deg off
+
+
+def test_l_point_along_the_entrance_takes_partner_separator():
+    # ps2.0 labels some end L points along the entrance toward their partner
+    pts = [mp(100, 300, UP), mp(460, 300, math.pi, JunctionShape.L)]
+    (slot,) = infer_slots(pts)
+    assert slot.kind is SlotKind.PARALLEL
+    assert (slot.i, slot.j) == (0, 1)
+
+
+def test_confidence_follows_points():
+    strong = infer_slots([mp(200, 300, UP, conf=1.0), mp(350, 300, UP, conf=1.0)])[0]
+    weak = infer_slots([mp(200, 300, UP, conf=0.5), mp(350, 300, UP, conf=0.5)])[0]
+    assert strong.confidence == pytest.approx(1.0)
+    assert weak.confidence == pytest.approx(0.5)
+    assert infer_slots([mp(200, 300, UP), mp(350, 300, UP)], min_confidence=0.95) == []
+
+
+def test_slot_observation_in_vehicle_frame():
+    spec = TopviewSpec()
+    (slot,) = infer_slots([mp(200, 300, UP), mp(350, 300, UP)], spec)
+    obs = slot_observation(slot, spec, "B17", 0.8, 0.12)
+    c = spec.centre_px / 60.0
+    expect = np.array(
+        [
+            [c - 300 / 60.0, c - 200 / 60.0],
+            [c - 300 / 60.0, c - 350 / 60.0],
+            [c, c - 350 / 60.0],
+            [c, c - 200 / 60.0],
+        ]
+    )
+    np.testing.assert_allclose(obs.vCorners, expect, atol=1e-9)
+    assert obs.kind is SlotKind.PERPENDICULAR
+    assert (obs.label, obs.label_confidence, obs.corner_sigma) == ("B17", 0.8, 0.12)
+    assert obs.confidence == pytest.approx(slot.confidence)
+    # entrance-left has the larger y (vehicle left) when the slot lies ahead
+    assert obs.vCorners[0, 1] > obs.vCorners[1, 1]

@@ -1,0 +1,98 @@
+"""Smoke tests of the perception and analysis commands through the real CLI entry point:
+detect, evaluate detections, accuracy, plan-tags."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from semslam.cli import app
+from semslam.io import save_map, write_tum
+from semslam.io.dmpr_labels import TopviewLabels, write_dmpr_labels
+from semslam.simulation.topview_samples import sample_topviews
+from semslam.simulation.world import make_world
+
+runner = CliRunner()
+
+
+def _run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def labelled_views(tmp_path_factory):
+    """Three held-out simulated top views with their labels in the DMPR-PS form."""
+    root = tmp_path_factory.mktemp("views")
+    (root / "images").mkdir()
+    (root / "labels").mkdir()
+    for k, s in enumerate(sample_topviews(range(3, 6), 1, 11, presets=("small",))):
+        cv2.imwrite(str(root / "images" / f"{k:03d}.png"), s.image)
+        a = s.annotation
+        labels = TopviewLabels(a.points, a.directions, a.shapes.astype(int), a.slots)
+        write_dmpr_labels(root / "labels" / f"{k:03d}.json", labels)
+    return root
+
+
+def test_detect_prints_json_and_writes_overlays(labelled_views, tmp_path):
+    images = sorted((labelled_views / "images").iterdir())
+    result = _run("detect", *images, "--json", "--overlay", tmp_path / "ov")
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert [e["image"] for e in doc["images"]] == [str(p) for p in images]
+    found = sum(len(e["points"]) for e in doc["images"])
+    assert found > 0
+    for entry in doc["images"]:
+        for p in entry["points"]:
+            assert 0 <= p["u"] < 600 and 0 <= p["v"] < 600 and 0 <= p["confidence"] <= 1
+        for s in entry["slots"]:
+            assert len(s["corners_vehicle"]) == 4 and 0 <= s["label_confidence"] <= 1
+    assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == [p.stem + ".png" for p in images]
+
+
+def test_detect_refuses_a_file_that_is_not_an_image(tmp_path):
+    bad = tmp_path / "x.png"
+    bad.write_text("not an image")
+    result = _run("detect", bad)
+    assert result.exit_code == 2 and "not an image OpenCV can read" in result.stderr
+
+
+def test_evaluate_detections_scores_labelled_views(labelled_views):
+    result = _run(
+        "evaluate", "detections", labelled_views / "images", labelled_views / "labels", "--json"
+    )
+    assert result.exit_code == 0, result.output
+    m = json.loads(result.stdout)
+    assert m["images"] == 3 and m["point_labels"] > 0
+    for key in ("point_precision", "point_recall", "slot_precision", "slot_recall"):
+        assert 0.0 <= m[key] <= 1.0
+    assert m["point_recall"] > 0.5  # the shipped model finds most points of simple views
+
+
+def test_evaluate_detections_refuses_a_folder_without_labels(tmp_path):
+    (tmp_path / "images").mkdir()
+    (tmp_path / "labels").mkdir()
+    result = _run("evaluate", "detections", tmp_path / "images", tmp_path / "labels")
+    assert result.exit_code == 2 and "no image with a label file" in result.stderr
+
+
+def test_accuracy_and_plan_tags_on_a_small_world(tmp_path):
+    world = make_world("small", 2).to_map()
+    save_map(tmp_path / "world.json", world)
+    t = np.arange(0.0, 20.0, 0.5)
+    poses = np.column_stack([2.0 + 2.0 * t, np.full_like(t, 8.0), np.zeros_like(t)])
+    write_tum(tmp_path / "route.tum", t, poses)
+    result = _run("accuracy", tmp_path / "world.json", "--route", tmp_path / "route.tum",
+                  "-o", tmp_path / "acc", "--grid-step", "4", "--json")
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["route"]["poses"] == len(t) and doc["grid"]["cells"] > 0
+    assert (tmp_path / "acc" / "accuracy_map.png").stat().st_size > 10000
+    result = _run("plan-tags", tmp_path / "world.json", "--route", tmp_path / "route.tum",
+                  "-o", tmp_path / "plan", "--count", "2", "--json")
+    assert result.exit_code == 0, result.output
+    plan = json.loads(result.stdout)
+    assert len(plan["greedy"]) == 3 and plan["greedy"][0]["count"] == 0
+    result = _run("accuracy", tmp_path / "world.json", "-o", tmp_path / "a2", "--grade", "bad")
+    assert result.exit_code == 2

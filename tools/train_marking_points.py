@@ -1,0 +1,570 @@
+"""Train the marking-point CNN (DMPR-PS style) on simulated ps2.0 top views; export ONNX.
+
+Stages, each re-runnable:
+
+1. render: labelled top views from ``sample_topviews`` (training world seeds only), resized
+   to the network input (INTER_AREA, as at run time), cached as ``.npz`` shards in
+   ``--cache`` keyed by the sampling arguments (a second run reuses them);
+2. train: a small fully convolutional net on one CPU thread, heavy augmentation (colour,
+   yellow paint, blur, noise, JPEG, rotations by k*90 deg + small angles, mirror),
+   fixed seeds;
+3. export: ONNX (opset 17, input ``(1, S, S, 3)`` uint8 BGR, output ``(1, 6, G, G)``
+   float32), written atomically, checked against torch;
+4. evaluate: the ps2.0 point metric (10 px, 30 deg) through the runtime detector on
+   held-out world seeds (never trained on), the slot metric, and the real ps2.0 samples.
+
+Example::
+
+    PYTHONPATH=. python tools/train_marking_points.py --train-worlds 1000:2000 \
+        --per-world 8 --epochs 30 --out models/marking_points.onnx
+
+torch is needed here only; the package runs the exported model with onnxruntime.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+INPUT = 256  # network input side, px
+GRID = 16  # output cells per side
+SRC = 600  # ps2.0 top-view side, px
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
+    """Pixel coordinates (OpenCV centres) under a resize from src to dst px."""
+    k = dst / src
+    return (np.asarray(points, float) + 0.5) * k - 0.5
+
+
+def _render_shard(args: tuple[list[int], int, int, str]) -> str:
+    from semslam.simulation.topview_samples import sample_topviews
+
+    seeds, per_world, seed, path = args
+    if os.path.exists(path):
+        return path
+    images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
+    for s in sample_topviews(seeds, per_world, seed):
+        a = s.annotation
+        images.append(cv2.resize(s.image, (INPUT, INPUT), interpolation=cv2.INTER_AREA))
+        pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
+        dirs.append(np.asarray(a.directions, np.float32).reshape(-1))
+        shapes.append(np.asarray(a.shapes, np.int8).reshape(-1))
+        occ.append(np.asarray(a.occluded, bool).reshape(-1))
+        counts.append(len(a.points))
+    tmp = path + ".tmp.npz"
+    np.savez(
+        tmp,
+        images=np.stack(images),
+        points=np.concatenate(pts) if pts else np.zeros((0, 2), np.float32),
+        directions=np.concatenate(dirs),
+        shapes=np.concatenate(shapes),
+        occluded=np.concatenate(occ),
+        counts=np.asarray(counts, np.int32),
+    )
+    os.replace(tmp, path)
+    return path
+
+
+def render_dataset(
+    seeds: list[int], per_world: int, seed: int, cache: Path, workers: int
+) -> dict[str, np.ndarray]:
+    """Rendered, resized training views and their labels (600 px coordinates)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    key = hashlib.sha1(json.dumps([seeds, per_world, seed, INPUT]).encode()).hexdigest()[:10]
+    chunk = 25
+    jobs = []
+    for k in range(0, len(seeds), chunk):
+        part = seeds[k : k + chunk]
+        jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz")))
+    t0 = time.time()
+    if workers > 1:
+        with mp.get_context("spawn").Pool(workers) as pool:
+            for n, _ in enumerate(pool.imap(_render_shard, jobs), 1):
+                print(f"render {n}/{len(jobs)} shards {time.time() - t0:.0f} s", flush=True)
+    else:
+        for n, job in enumerate(jobs, 1):
+            _render_shard(job)
+            print(f"render {n}/{len(jobs)} shards {time.time() - t0:.0f} s", flush=True)
+    parts = [np.load(j[3]) for j in jobs]
+    out = {name: np.concatenate([p[name] for p in parts]) for name in parts[0].files}
+    return out
+
+
+def _labels_at_input(data: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+    """Per view: points at the input scale, directions, shapes, occluded."""
+    out, k = [], 0
+    for n in data["counts"]:
+        sl = slice(k, k + int(n))
+        out.append(
+            (
+                _scale_points(data["points"][sl], SRC, INPUT),
+                data["directions"][sl].astype(float),
+                data["shapes"][sl].astype(int),
+                data["occluded"][sl].astype(bool),
+            )
+        )
+        k += int(n)
+    return out
+
+
+# ----------------------------------------------------------------------------- augmentation
+
+
+def augment(
+    image: np.ndarray, labels: tuple[np.ndarray, ...], rng: np.random.Generator
+) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """A randomly transformed copy of one input-size view and its labels.
+
+    Geometry: rotation by k * 90 deg plus up to +-12 deg (one case in six any angle),
+    scale 0.95-1.05, shift up to 8 px, mirror left-right; points and directions go
+    through the same affine map (a mirror flips du), points leaving the image are dropped.
+    Colour: brightness, contrast, gamma, per-channel gains, hue shift, yellowed or greyed
+    paint, illumination gradients, blur, noise, JPEG.
+    """
+    pts, dirs, shapes, occ = labels
+    n = INPUT
+    c = (n - 1) / 2.0
+    angle = 90.0 * int(rng.integers(4))
+    angle += rng.uniform(-180, 180) if rng.random() < 1 / 6 else rng.uniform(-12, 12)
+    scale = rng.uniform(0.95, 1.05)
+    A = cv2.getRotationMatrix2D((c, c), angle, scale)
+    if rng.random() < 0.5:  # mirror u before rotating
+        F = np.array([[-1.0, 0.0, n - 1.0], [0.0, 1.0, 0.0], [0, 0, 1]])
+        A = A @ F
+    A[:, 2] += rng.uniform(-8, 8, size=2)
+    img = cv2.warpAffine(
+        image, A, (n, n), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+    )
+    if len(pts):
+        q = pts @ A[:, :2].T + A[:, 2]
+        d = np.stack([np.cos(dirs), np.sin(dirs)], 1) @ A[:, :2].T
+        nd = np.arctan2(d[:, 1], d[:, 0])
+        keep = (q[:, 0] >= -0.5) & (q[:, 0] < n - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] < n - 0.5)
+        pts, dirs, shapes, occ = q[keep], nd[keep], shapes[keep], occ[keep]
+    img = _photometric(img, rng)
+    return img, (pts, dirs, shapes, occ)
+
+
+def _photometric(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    f = img.astype(np.float32)
+    if rng.random() < 0.3:  # paint to yellow: pull blue down where bright and unsaturated
+        grey = f.mean(axis=2)
+        bright = np.clip((grey - np.percentile(grey, 80)) / 60.0, 0, 1)
+        f[..., 0] *= 1.0 - rng.uniform(0.3, 0.7) * bright
+    if rng.random() < 0.5:  # hue shift
+        hsv = cv2.cvtColor(np.clip(f, 0, 255).astype(np.uint8), cv2.COLOR_BGR2HSV)
+        hsv[..., 0] = ((hsv[..., 0].astype(int) + int(rng.integers(-12, 13))) % 180).astype(
+            np.uint8
+        )
+        f = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR).astype(np.float32)
+    f *= rng.uniform(0.8, 1.2, size=3).astype(np.float32)  # colour cast
+    mean = f.mean()
+    f = (f - mean) * rng.uniform(0.5, 1.4) + mean * rng.uniform(0.55, 1.45)  # contrast, light
+    if rng.random() < 0.4:  # illumination gradient / light pool
+        yy, xx = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) / INPUT
+        g = rng.uniform(-0.5, 0.5) * (xx - 0.5) + rng.uniform(-0.5, 0.5) * (yy - 0.5)
+        f *= (1.0 + g)[..., None]
+    if rng.random() < 0.1:
+        f[:] = f.mean(axis=2, keepdims=True)
+    f = np.clip(f, 0, 255)
+    if rng.random() < 0.5:
+        gamma = rng.uniform(0.7, 1.4)
+        f = 255.0 * (f / 255.0) ** gamma
+    if rng.random() < 0.3:
+        s = rng.uniform(0.3, 1.3)
+        f = cv2.GaussianBlur(f, (0, 0), s)
+    if rng.random() < 0.5:
+        f += rng.normal(0, rng.uniform(1, 10), size=f.shape).astype(np.float32)
+    out = np.clip(f, 0, 255).astype(np.uint8)
+    if rng.random() < 0.3:
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(25, 90))])
+        out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def encode_targets(labels: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(6, G, G) targets [conf, shape(L), ox, oy, cos, sin] and a (G, G) confidence weight
+    (0 in cells holding an occluded point: neither required nor punished)."""
+    pts, dirs, shapes, occ = labels
+    t = np.zeros((6, GRID, GRID), np.float32)
+    w = np.ones((GRID, GRID), np.float32)
+    cell = INPUT / GRID
+    for (u, v), a, s, o in zip(pts, dirs, shapes, occ, strict=True):
+        x, y = (u + 0.5) / cell, (v + 0.5) / cell
+        col, row = min(int(x), GRID - 1), min(int(y), GRID - 1)
+        if o:
+            if t[0, row, col] == 0:
+                w[row, col] = 0.0
+            continue
+        w[row, col] = 1.0
+        t[:, row, col] = [1.0, float(s), x - col, y - row, math.cos(a), math.sin(a)]
+    return t, w
+
+
+# ----------------------------------------------------------------------------- model
+
+
+def build_model():
+    import torch.nn as nn
+
+    def cbr(i: int, o: int, s: int = 1) -> list:
+        return [nn.Conv2d(i, o, 3, s, 1, bias=False), nn.BatchNorm2d(o), nn.ReLU(inplace=True)]
+
+    layers = (
+        cbr(3, 16, 2)
+        + cbr(16, 32, 2)
+        + cbr(32, 64, 2)
+        + cbr(64, 64)
+        + cbr(64, 64)
+        + cbr(64, 128, 2)
+        + cbr(128, 128)
+        + cbr(128, 128)
+    )
+    return nn.Sequential(*layers, nn.Conv2d(128, 6, 1))
+
+
+def _to_tensor(batch_u8: np.ndarray):
+    import torch
+
+    x = torch.from_numpy(batch_u8).permute(0, 3, 1, 2).float()
+    return x / 127.5 - 1.0
+
+
+def loss_fn(out, target, weight):
+    import torch
+    import torch.nn.functional as nnf
+
+    conf = nnf.binary_cross_entropy_with_logits(out[:, 0], target[:, 0], reduction="none")
+    pos = target[:, 0]
+    # positives weigh more (few per view): DMPR-PS-like balance
+    lconf = (conf * weight * (1.0 + 4.0 * pos)).sum() / weight.sum()
+    npos = pos.sum().clamp(min=1.0)
+    lshape = (
+        nnf.binary_cross_entropy_with_logits(out[:, 1], target[:, 1], reduction="none") * pos
+    ).sum() / npos
+    off = torch.sigmoid(out[:, 2:4])
+    loff = (((off - target[:, 2:4]) ** 2).sum(1) * pos).sum() / npos
+    d = torch.tanh(out[:, 4:6])
+    ldir = (((d - target[:, 4:6]) ** 2).sum(1) * pos).sum() / npos
+    return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir, (lconf, lshape, loff, ldir)
+
+
+class Exported:
+    """Wraps the trained net: uint8 BGR NHWC in, activated (1, 6, G, G) grid out."""
+
+    @staticmethod
+    def make(net):
+        import torch
+        import torch.nn as nn
+
+        class Wrapper(nn.Module):
+            def __init__(self, net):
+                super().__init__()
+                self.net = net
+
+            def forward(self, x):
+                x = x.permute(0, 3, 1, 2).float() / 127.5 - 1.0
+                y = self.net(x)
+                return torch.cat(
+                    [torch.sigmoid(y[:, 0:4]), torch.tanh(y[:, 4:6])],
+                    dim=1,
+                )
+
+        return Wrapper(net).eval()
+
+
+def export_onnx(net, out: Path) -> None:
+    import torch
+
+    net.eval()
+    wrapper = Exported.make(net)
+    dummy = torch.zeros(1, INPUT, INPUT, 3, dtype=torch.uint8)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.onnx.export(
+        wrapper,
+        (dummy,),
+        str(tmp),
+        input_names=["image"],
+        output_names=["grid"],
+        opset_version=17,
+        dynamo=False,
+    )
+    import onnx
+
+    model = onnx.load(str(tmp))
+    onnx.checker.check_model(model)
+    model.doc_string = (
+        f"DMPR-PS-style marking points. input image: (1, {INPUT}, {INPUT}, 3) uint8 BGR, "
+        f"a ps2.0 top view resized with INTER_AREA. output grid: (1, 6, {GRID}, {GRID}) "
+        "float32 [confidence, P(L junction), x offset, y offset in the cell (0-1), "
+        "cos, sin of the direction in image coordinates]"
+    )
+    onnx.save(model, str(tmp))
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    x = rng.integers(0, 255, size=(1, INPUT, INPUT, 3), dtype=np.uint8)
+    with torch.no_grad():
+        ref = wrapper(torch.from_numpy(x)).numpy()
+    got = sess.run(None, {"image": x})[0]
+    err = float(np.abs(ref - got).max())
+    if err > 1e-3:
+        raise SystemExit(f"ONNX export differs from torch by {err}")
+    os.replace(tmp, out)
+
+
+# ----------------------------------------------------------------------------- training
+
+
+def train(args: argparse.Namespace) -> None:
+    import torch
+
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(args.seed)
+    lo, hi = (int(v) for v in args.train_worlds.split(":"))
+    data = render_dataset(
+        list(range(lo, hi)), args.per_world, args.data_seed, args.cache, args.workers
+    )
+    images = data["images"]
+    labels = _labels_at_input(data)
+    n = len(images)
+    print(f"{n} training views, {int(data['counts'].sum())} points", flush=True)
+    net = build_model()
+    if args.init is not None:  # continue from saved weights (a second, shorter run)
+        net.load_state_dict(torch.load(args.init))
+    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+    steps_per_epoch = n // args.batch
+    total = steps_per_epoch * args.epochs
+    ckpt = args.cache / "marking_points_last.pt"  # not beside the model: package data
+    budget = args.max_minutes * 60.0 if args.max_minutes else float("inf")
+    t0 = time.time()
+    step = 0
+    progress = 0.0
+    for epoch in range(args.epochs):
+        net.train()
+        order = rng.permutation(n)
+        acc = np.zeros(5)
+        for b in range(steps_per_epoch):
+            # schedule on the larger of step and wall-clock progress: warm-up then cosine,
+            # so a slow (shared) machine still anneals inside --max-minutes
+            progress = max(step / total, (time.time() - t0) / budget)
+            if progress >= 1.0:
+                break
+            warm = min(1.0, (progress + 0.002) / 0.05)
+            for group in opt.param_groups:
+                group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
+            idx = order[b * args.batch : (b + 1) * args.batch]
+            xs, ts, ws = [], [], []
+            for i in idx:
+                img, lab = augment(images[i], labels[i], rng)
+                t, w = encode_targets(lab)
+                xs.append(img)
+                ts.append(t)
+                ws.append(w)
+            x = _to_tensor(np.stack(xs))
+            out = net(x)
+            loss, parts = loss_fn(
+                out, torch.from_numpy(np.stack(ts)), torch.from_numpy(np.stack(ws))
+            )
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            acc += [float(loss)] + [float(p) for p in parts]
+            if step % 50 == 0:
+                print(
+                    f"  step {step} loss {acc[0] / (b + 1):.4f} {time.time() - t0:.0f} s",
+                    flush=True,
+                )
+        k = max(b, 1)
+        print(
+            f"epoch {epoch + 1}/{args.epochs} step {step} loss {acc[0] / k:.4f} "
+            f"(conf {acc[1] / k:.4f} shape {acc[2] / k:.4f} off {acc[3] / k:.4f} "
+            f"dir {acc[4] / k:.4f}) {time.time() - t0:.0f} s",
+            flush=True,
+        )
+        torch.save(net.state_dict(), ckpt)
+        if progress >= 1.0:
+            break
+    print(f"training time {time.time() - t0:.0f} s", flush=True)
+    export_onnx(net, args.out)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB)", flush=True)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+def match_points(det_uv, det_dir, lab_uv, lab_dir, dist_px=10.0, angle_deg=30.0):
+    """Greedy one-to-one matching by the ps2.0 rule: (hits per detection, label index or -1)."""
+    det_uv = np.asarray(det_uv, float).reshape(-1, 2)
+    lab_uv = np.asarray(lab_uv, float).reshape(-1, 2)
+    assign = np.full(len(det_uv), -1)
+    if not len(det_uv) or not len(lab_uv):
+        return assign
+    d = np.linalg.norm(det_uv[:, None] - lab_uv[None], axis=2)
+    da = np.abs(np.angle(np.exp(1j * (np.asarray(det_dir)[:, None] - np.asarray(lab_dir)[None]))))
+    ok = (d <= dist_px) & (da <= math.radians(angle_deg))
+    used = np.zeros(len(lab_uv), bool)
+    for k in np.argsort(d, axis=None):
+        i, j = divmod(int(k), len(lab_uv))
+        if ok[i, j] and assign[i] < 0 and not used[j]:
+            assign[i] = j
+            used[j] = True
+    return assign
+
+
+def evaluate(
+    model: Path,
+    worlds: list[int],
+    per_world: int,
+    seed: int,
+    real: Path | None,
+    threshold: float | None = None,
+) -> dict:
+    from semslam.io.dmpr_labels import read_dmpr_labels
+    from semslam.perception.marking_points import MarkingPointDetector
+    from semslam.perception.slots import infer_slots
+    from semslam.simulation.topview_samples import sample_topviews
+
+    det = (
+        MarkingPointDetector(model) if threshold is None else MarkingPointDetector(model, threshold)
+    )
+    res: dict = {}
+    # counts: [tp, fp, fn] visible-only (occluded labels: a hit on one is neither) and all
+    vis = np.zeros(3)
+    full = np.zeros(3)
+    slots = np.zeros(3)
+    kinds = {1: np.zeros(3), 2: np.zeros(3), 3: np.zeros(3)}
+    shape_ok = shape_n = 0
+    times = []
+    failures = []
+    for s in sample_topviews(worlds, per_world, seed):
+        a = s.annotation
+        t = time.perf_counter()
+        pts = det.detect(s.image)
+        times.append(time.perf_counter() - t)
+        uv = np.array([p.uv for p in pts]).reshape(-1, 2)
+        dd = np.array([p.direction for p in pts])
+        assign = match_points(uv, dd, a.points, a.directions)
+        hit = assign >= 0
+        occ = np.asarray(a.occluded, bool)
+        hit_vis = hit & ~occ[assign] if len(occ) else hit
+        matched = np.zeros(len(a.points), bool)
+        matched[assign[hit]] = True
+        vis += [hit_vis.sum(), (~hit).sum(), (~matched & ~occ).sum()]
+        full += [hit.sum(), (~hit).sum(), (~matched).sum()]
+        for k in np.nonzero(hit)[0]:
+            shape_n += 1
+            shape_ok += int(pts[k].shape.value == ("T", "L")[int(a.shapes[assign[k]])])
+        if (~hit).sum() or (~matched & ~occ).sum():
+            failures.append(
+                (s.world_seed, s.render_seed, int((~hit).sum()), int((~matched & ~occ).sum()))
+            )
+        # slots: a hit if both entrance points match the labelled slot's points (either order)
+        ds = infer_slots(pts)
+        lab = {(int(i) - 1, int(j) - 1): int(t) for i, j, t, _ in a.slots}
+        det_pairs = set()
+        for sl in ds:
+            i, j = assign[sl.i], assign[sl.j]
+            det_pairs.add((int(i), int(j)) if i >= 0 and j >= 0 else (-1, -1))
+        # visible slots only: both points unoccluded
+        lab_vis = {k: v for k, v in lab.items() if not occ[k[0]] and not occ[k[1]]}
+        tp = sum(1 for k in lab_vis if k in det_pairs)
+        fp = sum(1 for k in det_pairs if k not in lab)
+        slots += [tp, fp, len(lab_vis) - tp]
+        for k, v in lab_vis.items():
+            kinds[v] += [int(k in det_pairs), 0, int(k not in det_pairs)]
+    pr = lambda c: (c[0] / max(c[0] + c[1], 1), c[0] / max(c[0] + c[2], 1))  # noqa: E731
+    res["heldout_views"] = len(times)
+    res["points_visible"] = dict(zip(("precision", "recall"), pr(vis), strict=True)) | {
+        "tp_fp_fn": vis.astype(int).tolist()
+    }
+    res["points_all"] = dict(zip(("precision", "recall"), pr(full), strict=True)) | {
+        "tp_fp_fn": full.astype(int).tolist()
+    }
+    res["shape_accuracy"] = shape_ok / max(shape_n, 1)
+    res["slots_visible"] = dict(zip(("precision", "recall"), pr(slots), strict=True)) | {
+        "tp_fp_fn": slots.astype(int).tolist()
+    }
+    res["slot_recall_by_type"] = {k: float(pr(v)[1]) for k, v in kinds.items()}
+    res["detect_ms_median"] = 1000 * float(np.median(times))
+    res["worst_views"] = failures[:10]
+    if real is not None and (real / "images").is_dir():
+        rc = np.zeros(3)
+        rs = np.zeros(3)
+        for f in sorted((real / "images").glob("*.jpg")):
+            lab = read_dmpr_labels(real / "labels" / (f.stem + ".json"))
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            pts = det.detect(img)
+            uv = np.array([p.uv for p in pts]).reshape(-1, 2)
+            dd = np.array([p.direction for p in pts])
+            assign = match_points(uv, dd, lab.points, lab.directions)
+            matched = np.zeros(len(lab.points), bool)
+            matched[assign[assign >= 0]] = True
+            rc += [(assign >= 0).sum(), (assign < 0).sum(), (~matched).sum()]
+            ds = infer_slots(pts)
+            pairs = {(int(assign[sl.i]), int(assign[sl.j])) for sl in ds}
+            labs = {(int(i) - 1, int(j) - 1) for i, j, _, _ in lab.slots}
+            tp = len(pairs & labs)
+            rs += [tp, len(pairs) - tp, len(labs) - tp]
+        res["real_points"] = dict(zip(("precision", "recall"), pr(rc), strict=True)) | {
+            "tp_fp_fn": rc.astype(int).tolist()
+        }
+        res["real_slots"] = dict(zip(("precision", "recall"), pr(rs), strict=True)) | {
+            "tp_fp_fn": rs.astype(int).tolist()
+        }
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--train-worlds", default="1000:2000", help="world seeds lo:hi (hi excluded)")
+    p.add_argument("--per-world", type=int, default=8, help="views per training world")
+    p.add_argument("--epochs", type=int, default=8)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=3e-3)
+    p.add_argument("--seed", type=int, default=1, help="weights, order, augmentation")
+    p.add_argument("--data-seed", type=int, default=1, help="training views (sampling)")
+    p.add_argument("--max-minutes", type=float, default=44.0, help="stop training after this")
+    p.add_argument("--workers", type=int, default=2, help="render processes")
+    p.add_argument("--cache", type=Path, default=Path("/tmp/semslam_mp_cache"))
+    p.add_argument("--out", type=Path, default=Path("models/marking_points.onnx"))
+    p.add_argument("--eval-worlds", default="0:100", help="held-out world seeds lo:hi")
+    p.add_argument("--eval-per-world", type=int, default=5)
+    p.add_argument(
+        "--real",
+        type=Path,
+        default=Path(__file__).resolve().parents[2] / "shared/realdata/ps2.0-samples",
+    )
+    p.add_argument("--init", type=Path, default=None, help="start from these torch weights")
+    p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
+    p.add_argument("--threshold", type=float, default=None, help="point confidence (eval)")
+    args = p.parse_args(argv)
+    if not args.eval_only:
+        train(args)
+    lo, hi = (int(v) for v in args.eval_worlds.split(":"))
+    res = evaluate(
+        args.out, list(range(lo, hi)), args.eval_per_world, 12345, args.real, args.threshold
+    )
+    print(json.dumps(res, indent=None).replace(', "', ',\n "'))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
