@@ -1,0 +1,240 @@
+"""Painted slot IDs ("B17", "213") read from ps2.0-style top views.
+
+Two steps. :func:`crop_id_patch` cuts a rectified grey patch of the floor just inside a
+slot's entrance, where the simulator paints the ID (``semslam.simulation.world``: text
+centre ``0.35 m + text height`` (0.35-0.55 m) into the slot along the separator, so the
+glyphs span 0.53-1.18 m deep), turned so the text reads upright for a viewer in the aisle
+looking into the slot. The patch covers -0.1-1.5 m into the slot (real ps2.0 garages
+paint their numbers right at the entrance line, 0-0.3 m deep) and +-1.6 m across
+(neighbouring slots' IDs, 2.4 m away, stay out) at 40 px per metre: 64 x 128 px.
+
+:class:`SlotIdReader` runs the shipped CTC model (``models/slot_ids.onnx``, trained by
+``tools/train_slot_ids.py``; see ``models/slot_ids.md``) and decodes greedily. CTC rather
+than a fixed-slot classifier: labels have 1-4 characters of variable width and position,
+and CTC needs no character alignment or length head. The graph takes raw grey levels,
+normalises each patch itself and returns per-frame probabilities with the calibration
+temperature already applied, so the reader is plain numpy.
+
+Confidence of a reading = product over its characters of the per-character maximum
+probability (over the frames that emitted it), with the temperature fitted on held-out
+simulated views so that it is honest (see the model card). An empty decoding (the model
+sees no text) gives ``label=None``, as does a reading below ``min_confidence``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from semslam.errors import PerceptionError
+from semslam.perception import onnx_model
+
+ALPHABET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"  # class k + 1; class 0 is the CTC blank
+PATCH_HEIGHT = 64
+PATCH_WIDTH = 128
+PX_PER_M = 40.0  # patch resolution
+DEPTH_RANGE_M = (-0.1, 1.5)  # along the slot, from the entrance line
+TOPVIEW_M_PER_PX = 1.0 / 60.0  # ps2.0
+
+
+@dataclass(frozen=True)
+class SlotIdReading:
+    """One slot's painted ID as read: ``label`` (None when nothing readable), the
+    calibrated probability that the whole label is right, and per-character
+    probabilities (in reading order)."""
+
+    label: str | None
+    confidence: float
+    char_confidences: tuple[float, ...]
+
+
+def crop_id_patch(
+    topview_bgr: np.ndarray,
+    entrance_uv: np.ndarray,
+    into_slot: np.ndarray,
+    *,
+    height: int = PATCH_HEIGHT,
+    width: int = PATCH_WIDTH,
+    px_per_m: float = PX_PER_M,
+    depth_range_m: tuple[float, float] = DEPTH_RANGE_M,
+    topview_m_per_px: float = TOPVIEW_M_PER_PX,
+) -> np.ndarray:
+    """The rectified (height, width) uint8 grey patch where a slot's ID is painted.
+
+    Args:
+        topview_bgr: (H, W, 3) uint8 BGR (or (H, W) grey) top view.
+        entrance_uv: (2, 2) pixel coordinates of the entrance-left and entrance-right
+            marking points (OpenCV convention); only their midpoint is used.
+        into_slot: (2,) direction in pixels from the entrance into the slot (along the
+            separator lines); normalised here.
+        height, width, px_per_m, depth_range_m: the patch: rows cover ``depth_range_m``
+            into the slot (row 0 deepest), columns ``width / px_per_m`` metres across,
+            centred on the entrance midpoint.
+        topview_m_per_px: metres per top-view pixel (1/60 for ps2.0).
+
+    Returns:
+        The patch, text upright (its up = into the slot, reading direction left to
+        right as seen from the aisle). Outside the image is black.
+
+    Raises:
+        PerceptionError: wrong image type or shape, non-finite points, zero direction.
+    """
+    img = _grey(topview_bgr)
+    e = np.asarray(entrance_uv, dtype=float)
+    d = np.asarray(into_slot, dtype=float)
+    if e.shape != (2, 2) or not np.isfinite(e).all():
+        raise PerceptionError(f"entrance_uv: expected finite (2, 2) pixels, got shape {e.shape}")
+    if d.shape != (2,) or not np.isfinite(d).all() or float(np.hypot(*d)) < 1e-9:
+        raise PerceptionError(f"into_slot: expected a finite non-zero (2,) vector, got {d!r}")
+    if height < 1 or width < 1 or px_per_m <= 0 or topview_m_per_px <= 0:
+        raise PerceptionError("crop_id_patch: patch size and scales must be positive")
+    up = d / float(np.hypot(*d))
+    right = np.array([-up[1], up[0]])  # image frame is mirrored against the ground frame
+    s = 1.0 / (px_per_m * topview_m_per_px)  # top-view px per patch px
+    d0, d1 = depth_range_m
+    mid = e.mean(axis=0)
+    # patch pixel (x, y) -> top view: mid + right * (x - (w-1)/2) * s + up * depth(y)
+    depth0 = d1 / topview_m_per_px  # row 0 (deepest), in top-view px
+    step = (d1 - d0) / topview_m_per_px / max(height - 1, 1)  # top-view px per row
+    col = right * s
+    row = -up * step
+    origin = mid + up * depth0 - col * (width - 1) / 2.0
+    M = np.array([[col[0], row[0], origin[0]], [col[1], row[1], origin[1]]])
+    return cv2.warpAffine(
+        img,
+        M,
+        (width, height),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
+        kind = image.dtype if isinstance(image, np.ndarray) else type(image).__name__
+        raise PerceptionError(f"topview: expected a uint8 image, got {kind}")
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    raise PerceptionError(f"topview: expected (H, W, 3) BGR or (H, W) grey, got {image.shape}")
+
+
+def ctc_greedy(probs: np.ndarray, alphabet: str = ALPHABET) -> tuple[str, tuple[float, ...]]:
+    """Greedy CTC decoding of one (T, C) probability array (class 0 blank, class k is
+    ``alphabet[k - 1]``): best class per frame, repeats merged, blanks dropped.
+
+    Returns the string and per-character confidences (the highest probability among the
+    frames of each emitted character).
+    """
+    p = np.asarray(probs, dtype=float)
+    if p.ndim != 2 or p.shape[1] != len(alphabet) + 1:
+        raise PerceptionError(
+            f"ctc_greedy: expected (T, {len(alphabet) + 1}) probabilities, got {p.shape}"
+        )
+    best = p.argmax(axis=1)
+    top = p.max(axis=1)
+    chars: list[str] = []
+    confs: list[float] = []
+    prev = 0
+    for k, c in enumerate(best):
+        if c != 0 and c == prev:
+            confs[-1] = max(confs[-1], float(top[k]))
+        elif c != 0:
+            chars.append(alphabet[c - 1])
+            confs.append(float(top[k]))
+        prev = c
+    return "".join(chars), tuple(confs)
+
+
+def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdReading:
+    """A :class:`SlotIdReading` from one (T, C) probability array: greedy decoding,
+    confidence = product of the characters' probabilities; nothing decoded -> None with
+    the confidence that there is nothing (the lowest blank probability)."""
+    label, confs = ctc_greedy(probs, alphabet)
+    if not label:
+        blank = float(np.asarray(probs, float)[:, 0].min()) if len(probs) else 1.0
+        return SlotIdReading(None, float(np.clip(blank, 0.0, 1.0)), ())
+    conf = float(np.clip(math.prod(confs), 0.0, 1.0))
+    return SlotIdReading(label, conf, tuple(float(np.clip(c, 0.0, 1.0)) for c in confs))
+
+
+class SlotIdReader:
+    """Reads painted slot IDs with the shipped ONNX model (one CPU thread).
+
+    ``min_confidence``: readings below it come back with ``label=None`` (keeping their
+    confidence and characters), so callers only see labels more likely right than wrong
+    (default 0.5); 0 keeps every decoded label. Mapping should vote with labels of
+    confidence >= 0.9 (>= 99 % right on held-out simulated views, see the model card).
+    """
+
+    def __init__(self, model_path: str | Path | None = None, min_confidence: float = 0.5):
+        if not 0.0 <= float(min_confidence) <= 1.0:
+            raise PerceptionError(f"min_confidence: expected 0..1, got {min_confidence}")
+        if model_path is None:
+            model_path = onnx_model.model_path("slot_ids.onnx")
+        path = Path(model_path)
+        self.path = path
+        self.min_confidence = float(min_confidence)
+        self._session = onnx_model.load_session(path)
+        inputs = self._session.get_inputs()
+        shape = inputs[0].shape if inputs else None
+        if (
+            len(inputs) != 1
+            or shape is None
+            or len(shape) != 4
+            or shape[1:]
+            != [
+                1,
+                PATCH_HEIGHT,
+                PATCH_WIDTH,
+            ]
+        ):
+            raise PerceptionError(
+                f"{path}: expected one input (N, 1, {PATCH_HEIGHT}, {PATCH_WIDTH}), got {shape}"
+            )
+        self._input = inputs[0].name
+
+    def read(
+        self, topview_bgr: np.ndarray, entrance_uv: np.ndarray, into_slot: np.ndarray
+    ) -> SlotIdReading:
+        """The ID painted in the slot at ``entrance_uv`` (see :func:`crop_id_patch`)."""
+        return self.read_patches([crop_id_patch(topview_bgr, entrance_uv, into_slot)])[0]
+
+    def read_patches(self, patches) -> list[SlotIdReading]:
+        """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`, one batch."""
+        arr = [np.asarray(p) for p in patches]
+        if not arr:
+            return []
+        for k, p in enumerate(arr):
+            if p.dtype != np.uint8 or p.shape != (PATCH_HEIGHT, PATCH_WIDTH):
+                raise PerceptionError(
+                    f"patches[{k}]: expected uint8 ({PATCH_HEIGHT}, {PATCH_WIDTH}), "
+                    f"got {p.dtype} {p.shape}"
+                )
+        x = np.stack(arr).astype(np.float32)[:, None]
+        probs = self._session.run(None, {self._input: x})[0]
+        out = []
+        for p in probs:
+            r = reading_from_probs(p)
+            if r.label is not None and r.confidence < self.min_confidence:
+                r = SlotIdReading(None, r.confidence, r.char_confidences)
+            out.append(r)
+        return out
+
+
+__all__ = [
+    "ALPHABET",
+    "PATCH_HEIGHT",
+    "PATCH_WIDTH",
+    "SlotIdReader",
+    "SlotIdReading",
+    "crop_id_patch",
+    "ctc_greedy",
+    "reading_from_probs",
+]

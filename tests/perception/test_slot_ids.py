@@ -1,0 +1,177 @@
+"""Slot-ID reader: crop geometry, CTC decoding, the shipped model on simulated views."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from semslam.errors import PerceptionError
+from semslam.perception.onnx_model import model_path
+from semslam.perception.slot_ids import (
+    ALPHABET,
+    PATCH_HEIGHT,
+    PATCH_WIDTH,
+    SlotIdReader,
+    SlotIdReading,
+    crop_id_patch,
+    ctc_greedy,
+    reading_from_probs,
+)
+
+MODEL = model_path("slot_ids.onnx")
+needs_model = pytest.mark.skipif(not MODEL.is_file(), reason="models/slot_ids.onnx not trained")
+
+
+def _rot(v, deg):
+    a = math.radians(deg)
+    return np.array(
+        [math.cos(a) * v[0] - math.sin(a) * v[1], math.sin(a) * v[0] + math.cos(a) * v[1]]
+    )
+
+
+@pytest.mark.parametrize("deg", [0.0, 37.0, 90.0, 180.0, -120.0])
+def test_crop_comes_out_upright(deg):
+    # an "L" drawn upright in the patch frame at 0.8 m deep, then rotated into the image
+    up = _rot(np.array([0.0, -1.0]), deg)  # into the slot, pixels
+    right = np.array([-up[1], up[0]])
+    mid = np.array([300.0, 300.0])
+    img = np.zeros((600, 600, 3), np.uint8)
+    centre = mid + up * 0.8 * 60  # 0.8 m deep
+    # vertical stroke of the L (along up) and its foot (along right, at the bottom)
+    top, bottom = centre + up * 15, centre - up * 15
+    cv2.line(
+        img,
+        tuple(np.round(top).astype(int)),
+        tuple(np.round(bottom).astype(int)),
+        (255, 255, 255),
+        5,
+    )
+    foot = bottom + right * 18
+    cv2.line(
+        img,
+        tuple(np.round(bottom).astype(int)),
+        tuple(np.round(foot).astype(int)),
+        (255, 255, 255),
+        5,
+    )
+    entrance = np.array([mid - right * 75, mid + right * 75])
+    patch = crop_id_patch(img, entrance, up * 3.0)
+    assert patch.shape == (PATCH_HEIGHT, PATCH_WIDTH) and patch.dtype == np.uint8
+    ys, xs = np.nonzero(patch > 128)
+    # centred across; 0.8 m deep: row (1.5 - 0.8) / 1.6 * 63 from the top
+    assert abs(xs.mean() - (PATCH_WIDTH - 1) / 2) < 8
+    assert abs(ys.mean() - (1.5 - 0.8) / 1.6 * (PATCH_HEIGHT - 1)) < 6
+    # the foot is at the bottom, to the right: upright, not mirrored
+    low = ys > ys.mean() + 5
+    assert xs[low].mean() > xs[~low].mean() + 2
+
+
+def test_crop_rejects_bad_input():
+    img = np.zeros((600, 600, 3), np.uint8)
+    e = np.array([[250.0, 300.0], [350.0, 300.0]])
+    with pytest.raises(PerceptionError):
+        crop_id_patch(img.astype(np.float32), e, np.array([0.0, -1.0]))
+    with pytest.raises(PerceptionError):
+        crop_id_patch(img, e[:1], np.array([0.0, -1.0]))
+    with pytest.raises(PerceptionError):
+        crop_id_patch(img, e, np.array([0.0, 0.0]))
+    with pytest.raises(PerceptionError):
+        crop_id_patch(np.zeros((600, 600, 4), np.uint8), e, np.array([0.0, -1.0]))
+
+
+def _probs(seq, p=0.9, T=12):
+    """(T, C) probabilities with class seq[t] at probability p (0 = blank)."""
+    C = len(ALPHABET) + 1
+    out = np.full((T, C), (1 - p) / (C - 1))
+    for t in range(T):
+        out[t, seq[t] if t < len(seq) else 0] = p
+    return out
+
+
+def test_ctc_greedy_merges_repeats_and_drops_blanks():
+    c = {ch: k + 1 for k, ch in enumerate(ALPHABET)}
+    seq = [0, c["B"], c["B"], 0, c["1"], 0, c["1"], c["7"], c["7"], 0]
+    label, confs = ctc_greedy(_probs(seq))
+    assert label == "B117"
+    assert len(confs) == 4 and all(abs(x - 0.9) < 1e-9 for x in confs)
+    r = reading_from_probs(_probs(seq, p=0.8))
+    assert r.label == "B117" and abs(r.confidence - 0.8**4) < 1e-9
+    blank = reading_from_probs(_probs([]))
+    assert blank.label is None and blank.char_confidences == () and 0 <= blank.confidence <= 1
+    with pytest.raises(PerceptionError):
+        ctc_greedy(np.zeros((5, 3)))
+
+
+def test_reading_is_frozen():
+    r = SlotIdReading("A1", 0.5, (0.7, 0.7))
+    with pytest.raises(AttributeError):
+        r.label = "B2"  # type: ignore[misc]
+
+
+def test_missing_or_corrupt_model(tmp_path):
+    with pytest.raises(PerceptionError, match="not found"):
+        SlotIdReader(tmp_path / "nope.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"this is not a model")
+    with pytest.raises(PerceptionError, match="bad.onnx"):
+        SlotIdReader(bad)
+    with pytest.raises(PerceptionError):
+        SlotIdReader(bad, min_confidence=2.0)
+
+
+@pytest.fixture(scope="module")
+def held_out():
+    """Readable IDs (fully inside, entrance visible) on a few held-out simulated views."""
+    from semslam.rig import TopviewSpec
+    from semslam.simulation.topview_samples import sample_topviews
+    from semslam.simulation.world import make_world
+
+    spec = TopviewSpec()
+
+    cases = []
+    for s in sample_topviews(range(0, 3), 3, 5):
+        world = make_world(s.preset, s.world_seed)
+        x, y, yaw = s.mTv
+        c, sn = math.cos(yaw), math.sin(yaw)
+        for slot_id, label, _box in s.annotation.ids:
+            corners = np.asarray(world.slots[slot_id].corners, float) - [x, y]
+            vx = corners[:, 0] * c + corners[:, 1] * sn
+            vy = -corners[:, 0] * sn + corners[:, 1] * c
+            uv = spec.vehicle_to_pixel(np.stack([vx, vy], axis=1))
+            cases.append((s.image, uv[:2], uv[3] - uv[0], label))
+    return cases
+
+
+@needs_model
+def test_shipped_model_reads_held_out_views(held_out):
+    reader = SlotIdReader(min_confidence=0.0)
+    assert len(held_out) >= 5
+    patches = [crop_id_patch(img, e, d) for img, e, d, _ in held_out]
+    reads = reader.read_patches(patches)
+    right = [r.label == lab for r, (_, _, _, lab) in zip(reads, held_out, strict=True)]
+    # loose: a handful of views (the held-out set measures 0.74, see models/slot_ids.md)
+    assert np.mean(right) >= 0.4
+    # annotation.ids include labels under parked cars: a confident "nothing" is fine there
+    sure = [ok for r, ok in zip(reads, right, strict=True) if r.label and r.confidence >= 0.9]
+    assert not sure or np.mean(sure) >= 0.8
+    # the default reader withholds labels below 0.5
+    default = SlotIdReader().read_patches(patches)
+    assert all(r.label is None or r.confidence >= 0.5 for r in default)
+    for r in reads:
+        assert 0.0 <= r.confidence <= 1.0
+        assert all(0.0 <= c <= 1.0 for c in r.char_confidences)
+    # deterministic, and read() agrees with read_patches()
+    again = reader.read_patches(patches)
+    assert [(r.label, r.confidence) for r in reads] == [(r.label, r.confidence) for r in again]
+    img, e, d, _ = held_out[0]
+    one = reader.read(img, e, d)
+    assert one.label == reads[0].label and abs(one.confidence - reads[0].confidence) < 1e-6
+    # an empty floor reads as nothing
+    empty = np.full((PATCH_HEIGHT, PATCH_WIDTH), 90, np.uint8)
+    assert reader.read_patches([empty])[0].label is None
+    assert reader.read_patches([]) == []
+    with pytest.raises(PerceptionError):
+        reader.read_patches([np.zeros((10, 10), np.uint8)])
