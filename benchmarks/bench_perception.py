@@ -1,0 +1,179 @@
+"""Slot perception (issue 5): held-out simulated top views, real ps2.0 images, speed.
+
+    PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
+        [--json out.json]
+
+- simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
+  seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
+  over by a car or pillar ignored (detections on them are neither hits nor false);
+  slot IDs end to end: for every painted ID fully in view and not covered, the detected
+  slot whose ID patch holds it (entrance middle + 0.7 m into the slot, within 1 m) and
+  whether its reading is right; calibration: share right among readings given
+  confidence >= 0.9;
+- real ps2.0 samples (26 images, DMPR-PS labels): points and slots, ps2.0 metric;
+- speed: median ms per view of marking points + slots, IDs, and both together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+from _common import report
+
+from semslam.evaluation.detection_metrics import DetectionCounts, score_image
+from semslam.perception.topview_perception import TopviewPerception, into_slot_direction
+from semslam.pipeline.detect import evaluate_detection_folder
+from semslam.simulation.topview_samples import sample_topviews
+
+PS20 = "../shared/realdata/ps2.0-samples"
+
+
+def _arrays(det):
+    pts = np.array([p.uv for p in det.points], float).reshape(-1, 2)
+    dirs = np.array([p.direction for p in det.points], float)
+    shapes = np.array([0 if str(p.shape) == "T" else 1 for p in det.points], int)
+    conf = np.array([p.confidence for p in det.points], float)
+    return pts, dirs, shapes, conf
+
+
+def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dict:
+    total = DetectionCounts()
+    ids_right = ids_total = ids_read = 0
+    confident = confident_right = 0
+    t_slots, t_ids, t_both = [], [], []
+    for sample in sample_topviews(range(worlds), per_world, seed=20261122):
+        a = sample.annotation
+        t0 = time.perf_counter()
+        det = perception.detect(sample.image)
+        t_both.append(time.perf_counter() - t0)
+        t_slots.append(det.timings_ms["slots"])
+        t_ids.append(det.timings_ms["ids"])
+        pts, dirs, shapes, conf = _arrays(det)
+        # detections on covered labels are neither hits nor false: drop both
+        covered = a.points[a.occluded]
+        keep_det = np.ones(len(pts), bool)
+        if len(covered) and len(pts):
+            d = np.linalg.norm(pts[:, None] - covered[None], axis=2)
+            keep_det = d.min(axis=1) > 10.0
+        visible = ~a.occluded
+        index = np.cumsum(visible) * visible  # old 1-based index -> new 1-based, 0 = gone
+        slots = (
+            a.slots[(index[a.slots[:, 0] - 1] > 0) & (index[a.slots[:, 1] - 1] > 0)]
+            if len(a.slots)
+            else a.slots
+        )
+        slots = slots.copy()
+        if len(slots):
+            slots[:, 0] = index[slots[:, 0] - 1]
+            slots[:, 1] = index[slots[:, 1] - 1]
+        det_index = np.cumsum(keep_det) - 1
+        det_slots = np.array(
+            [
+                [det_index[s.i], det_index[s.j]]
+                for s in det.slots
+                if keep_det[s.i] and keep_det[s.j]
+            ],
+            int,
+        ).reshape(-1, 2)
+        total += score_image(
+            pts[keep_det],
+            dirs[keep_det],
+            shapes[keep_det],
+            conf[keep_det],
+            det_slots,
+            a.points[visible],
+            a.directions[visible],
+            a.shapes[visible],
+            slots,
+        )
+        # IDs: each visible painted label against the detected slot whose patch holds it
+        anchors = np.array(
+            [
+                (s.uv_corners[0] + s.uv_corners[1]) / 2 + 0.7 * 60.0 * into_slot_direction(s)
+                for s in det.slots
+            ],
+            float,
+        ).reshape(-1, 2)
+        for _, label, box in a.ids:
+            centre = np.asarray(box, float).mean(axis=0)
+            if covered.size and np.linalg.norm(covered - centre, axis=1).min() < 20:
+                continue
+            ids_total += 1
+            if not len(anchors):
+                continue
+            k = int(np.argmin(np.linalg.norm(anchors - centre, axis=1)))
+            if np.linalg.norm(anchors[k] - centre) > 60.0:
+                continue
+            reading = det.ids[k]
+            if reading.label is not None:
+                ids_read += 1
+                ids_right += reading.label == label
+                if reading.confidence >= 0.9:
+                    confident += 1
+                    confident_right += reading.label == label
+    s = total.summary()
+    return {
+        "views": s["images"],
+        "point_precision": round(s["point_precision"], 4),
+        "point_recall": round(s["point_recall"], 4),
+        "slot_precision": round(s["slot_precision"], 4),
+        "slot_recall": round(s["slot_recall"], 4),
+        "shape_accuracy": round(s["shape_accuracy"], 4),
+        "points": [s["point_true_positives"], s["point_detections"], s["point_labels"]],
+        "ids_visible": ids_total,
+        "ids_read": ids_read,
+        "id_accuracy_of_read": round(ids_right / max(ids_read, 1), 4),
+        "id_accuracy_of_visible": round(ids_right / max(ids_total, 1), 4),
+        "ids_confident": confident,
+        "id_accuracy_confident": round(confident_right / max(confident, 1), 4),
+        "slots_ms": round(statistics.median(t_slots), 3),
+        "ids_ms": round(statistics.median(t_ids), 3),
+        "slots_and_ids_ms": round(statistics.median(t_both) * 1e3, 3),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--worlds", type=int, default=100)
+    parser.add_argument("--per-world", type=int, default=5)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    perception = TopviewPerception(lines=False)
+    sim = simulated(perception, args.worlds, args.per_world)
+    real = evaluate_detection_folder(f"{PS20}/images", f"{PS20}/labels", perception)
+    real = {
+        k: real[k]
+        for k in (
+            "images",
+            "point_precision",
+            "point_recall",
+            "slot_precision",
+            "slot_recall",
+            "shape_accuracy",
+        )
+    }
+    md = [
+        "| set | views | point P / R | slot P / R | IDs right (read / visible) | "
+        "right at conf >= 0.9 | ms (points+slots / IDs / both) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        f"| simulated held-out | {sim['views']} | {sim['point_precision']:.3f} / "
+        f"{sim['point_recall']:.3f} | {sim['slot_precision']:.3f} / {sim['slot_recall']:.3f} | "
+        f"{sim['id_accuracy_of_read']:.3f} / {sim['id_accuracy_of_visible']:.3f} | "
+        f"{sim['id_accuracy_confident']:.3f} ({sim['ids_confident']}) | {sim['slots_ms']:.1f} / "
+        f"{sim['ids_ms']:.1f} / {sim['slots_and_ids_ms']:.1f} |",
+        f"| real ps2.0 samples | {real['images']} | {real['point_precision']:.3f} / "
+        f"{real['point_recall']:.3f} | {real['slot_precision']:.3f} / {real['slot_recall']:.3f}"
+        " | - | - | - |",
+    ]
+    report(
+        "\n".join(md),
+        {"simulated": sim, "ps2.0": real},
+        None if args.json is None else __import__("pathlib").Path(args.json),
+    )
+
+
+if __name__ == "__main__":
+    main()
