@@ -27,6 +27,7 @@ import math
 import os
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from semslam.geometry import FloatArray
@@ -225,6 +226,64 @@ def slot_observation(
     )
 
 
+def refine_depth(
+    topview_bgr: np.ndarray,
+    slot: DetectedSlot,
+    spec: TopviewSpec | None = None,
+    search_deg: float = 8.0,
+    step_deg: float = 0.25,
+    min_contrast: float = 12.0,
+) -> DetectedSlot:
+    """``slot`` with its depth direction snapped to the painted separators.
+
+    The CNN's direction is good to a few degrees, which at a 5 m separator moves the rear
+    corners by decimetres. From both entrance points, the paint brightness ((R + G) / 2,
+    white or yellow) is averaged along rays at angles within ``search_deg`` of the slot's
+    depth direction (the visible part, 0.25-3 m); the two separators are parallel, so
+    their profiles add. The brightest angle wins if it stands ``min_contrast`` grey levels
+    above the median angle (a painted line, not floor); otherwise the slot is unchanged.
+    The rear corners move, the entrance stays; a slot's kind and width are kept.
+    """
+    spec = spec or TopviewSpec()
+    c = np.asarray(slot.uv_corners, float)
+    depth_vec = c[3] - c[0]
+    depth = float(np.hypot(*depth_vec))
+    if depth < 1e-6:
+        return slot
+    h, w = topview_bgr.shape[:2]
+    paint = (topview_bgr[:, :, 1].astype(np.float32) + topview_bgr[:, :, 2]) / 2.0
+    base = math.atan2(depth_vec[1], depth_vec[0])
+    angles = base + np.radians(np.arange(-search_deg, search_deg + 1e-9, step_deg))
+    t = np.arange(0.25, min(3.0, depth * spec.metres_per_px), 0.05) / spec.metres_per_px
+    score = np.zeros(len(angles))
+    counts = np.zeros(len(angles))
+    for start in c[:2]:
+        u = start[0] + np.cos(angles)[:, None] * t[None, :]
+        v = start[1] + np.sin(angles)[:, None] * t[None, :]
+        inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+        values = cv2.remap(paint, u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR)
+        score += np.where(inside, values, 0.0).sum(axis=1)
+        counts += inside.sum(axis=1)
+    if counts.min() < 10:
+        return slot
+    profile = score / counts
+    best = int(np.argmax(profile))
+    floor = float(np.median(profile))
+    if profile[best] - floor < min_contrast:
+        return slot
+    # a wide line is as bright over a small range of angles: take the middle of the top
+    top = profile >= profile[best] - 0.2 * (profile[best] - floor)
+    lo = hi = best
+    while lo > 0 and top[lo - 1]:
+        lo -= 1
+    while hi < len(top) - 1 and top[hi + 1]:
+        hi += 1
+    a = float(angles[lo : hi + 1].mean())
+    new_vec = np.array([math.cos(a), math.sin(a)]) * depth
+    corners = np.array([c[0], c[1], c[1] + new_vec, c[0] + new_vec])
+    return DetectedSlot(slot.i, slot.j, corners, slot.kind, slot.angle_deg, slot.confidence)
+
+
 class SlotDetector:
     """Marking points (the CNN) and the slots they form, for one top view at a time.
 
@@ -246,7 +305,22 @@ class SlotDetector:
     def detect(self, topview_bgr: np.ndarray) -> tuple[list[MarkingPoint], list[DetectedSlot]]:
         """The marking points and slots of one uint8 BGR top view."""
         pts = self.points.detect(topview_bgr)
-        return pts, infer_slots(pts, self.spec, self.rules)
+        slots = infer_slots(pts, self.spec, self.rules)
+        # perpendicular and parallel slots take their depth from the entrance line (good
+        # to about a degree); slanted ones from the CNN's directions: snap those to paint
+        return pts, [
+            refine_depth(topview_bgr, s, self.spec, search_deg=20.0)
+            if s.kind is SlotKind.SLANTED
+            else s
+            for s in slots
+        ]
 
 
-__all__ = ["DetectedSlot", "SlotDetector", "SlotRules", "infer_slots", "slot_observation"]
+__all__ = [
+    "DetectedSlot",
+    "SlotDetector",
+    "SlotRules",
+    "infer_slots",
+    "refine_depth",
+    "slot_observation",
+]

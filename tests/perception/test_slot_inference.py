@@ -121,3 +121,30 @@ def test_slot_observation_in_vehicle_frame():
     assert obs.confidence == pytest.approx(slot.confidence)
     # entrance-left has the larger y (vehicle left) when the slot lies ahead
     assert obs.vCorners[0, 1] > obs.vCorners[1, 1]
+
+
+def test_refine_depth_snaps_a_slanted_slot_to_its_painted_separators():
+    import math
+
+    import cv2
+
+    from semslam.perception.slots import DetectedSlot, refine_depth
+    from semslam.types import SlotKind
+
+    image = np.full((600, 600, 3), 90, np.uint8)
+    el, er = np.array([200.0, 300.0]), np.array([380.0, 300.0])
+    true = math.radians(130.0)  # separators 50 deg off the entrance, down the image
+    d = np.array([math.cos(true), math.sin(true)]) * 300.0
+    for p in (el, er):
+        cv2.line(image, tuple(int(v) for v in p), tuple(int(v) for v in p + d), (230, 230, 230), 7)
+    guess = true + math.radians(12.0)
+    g = np.array([math.cos(guess), math.sin(guess)]) * 300.0
+    slot = DetectedSlot(0, 1, np.array([el, er, er + g, el + g]), SlotKind.SLANTED, 50.0, 0.9)
+    out = refine_depth(image, slot, search_deg=20.0)
+    got = np.asarray(out.uv_corners[3] - out.uv_corners[0])
+    assert abs(math.degrees(math.atan2(got[1], got[0]) - true)) < 0.5
+    np.testing.assert_allclose(out.uv_corners[:2], slot.uv_corners[:2])
+    assert abs(np.hypot(*got) - 300.0) < 1e-9
+    # on bare floor the slot is left alone
+    blank = np.full((600, 600, 3), 90, np.uint8)
+    assert refine_depth(blank, slot, search_deg=20.0) is slot
