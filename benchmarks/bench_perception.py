@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 from _common import report
@@ -28,7 +29,7 @@ from semslam.perception.topview_perception import TopviewPerception, into_slot_d
 from semslam.pipeline.detect import evaluate_detection_folder
 from semslam.simulation.topview_samples import sample_topviews
 
-PS20 = "../shared/realdata/ps2.0-samples"
+PS20 = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "ps2.0-samples"
 
 
 def _arrays(det):
@@ -143,7 +144,7 @@ def main() -> None:
     args = parser.parse_args()
     perception = TopviewPerception(lines=False)
     sim = simulated(perception, args.worlds, args.per_world)
-    real = evaluate_detection_folder(f"{PS20}/images", f"{PS20}/labels", perception)
+    real = evaluate_detection_folder(PS20 / "images", PS20 / "labels", perception)
     real = {
         k: real[k]
         for k in (

@@ -186,7 +186,7 @@ def run_demo(
         "timings_s": timings,
     }
     atomic_write_text(out / "results.json", json.dumps(results, indent=2, default=str) + "\n")
-    atomic_write_text(out / "report.md", _report(results, sorted(figures)))
+    atomic_write_text(out / "report.md", _report(results, list(figures)))
     return results
 
 
