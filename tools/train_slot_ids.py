@@ -50,6 +50,8 @@ from semslam.simulation.world import make_world
 
 SETS = {
     "train": (range(1000, 1400), 8, 11, 2),  # world seeds, views per world, seed, crops/label
+    "train2": (range(1400, 1600), 8, 44, 2),  # more training worlds (continuation)
+    "train3": (range(1600, 2000), 8, 55, 2),
     "calib": (range(100, 200), 8, 22, 1),
     "test": (range(0, 100), 8, 33, 1),
 }
@@ -150,7 +152,7 @@ def generate(name: str, cache: Path) -> dict:
                 for _c in range(crops):
                     ej, dj = _jittered(jrng, e, d)
                     ppm, rng_d = PX_PER_M, DEPTH_RANGE_M
-                    if name == "train":  # the text anywhere in the patch, scaled
+                    if name.startswith("train"):  # the text anywhere in the patch, scaled
                         ppm *= jrng.uniform(0.8, 1.15)
                         span = (rng_d[1] - rng_d[0]) * PX_PER_M / ppm
                         lo = top + 0.05 - rng_d[0] - span
@@ -161,7 +163,7 @@ def generate(name: str, cache: Path) -> dict:
                     labels.append(label if st == READABLE else "")
                     status.append(st)
                     meta.append((ws, rseed, slot_id, inside, visible, occluded))
-                if jrng.random() < (0.2 if name == "train" else 0.1):  # looking the wrong way
+                if jrng.random() < (0.2 if name.startswith("train") else 0.1):  # the wrong way
                     ej, dj = _jittered(jrng, e, -d)
                     patches.append(crop_id_patch(image, ej, dj))
                     labels.append("")
@@ -276,14 +278,26 @@ def augment(batch: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def train(data: dict, steps: int, batch: int, seed: int, minutes: float):
+def train(
+    data: dict,
+    steps: int,
+    batch: int,
+    seed: int,
+    minutes: float,
+    lr_max: float = 2e-3,
+    warmup: float = 0.03,
+    init: Path | None = None,
+):
     import torch
 
     torch.set_num_threads(1)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = build_model()
-    opt = torch.optim.AdamW(model.parameters(), lr=2e-3, weight_decay=1e-4)
+    if init is not None:  # continue from a saved state dict (the optimiser starts afresh)
+        model.load_state_dict(torch.load(init, map_location="cpu"))
+        print(f"[train] initialised from {init}", flush=True)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr_max, weight_decay=1e-4)
     ctc = torch.nn.CTCLoss(blank=0, zero_infinity=True)
     X, Y = data["patches"], data["labels"]
     t0 = time.time()
@@ -296,7 +310,7 @@ def train(data: dict, steps: int, batch: int, seed: int, minutes: float):
         if prog >= 1.0:
             print(f"[train] time budget reached at step {step}", flush=True)
             break
-        lr = 2e-3 * min(1.0, prog / 0.03) * 0.5 * (1 + math.cos(math.pi * prog))
+        lr = lr_max * min(1.0, prog / warmup) * 0.5 * (1 + math.cos(math.pi * prog))
         for g in opt.param_groups:
             g["lr"] = lr
         done = step + 1
@@ -456,6 +470,13 @@ def main() -> None:
         "--minutes", type=float, default=24.0, help="training wall-time cap (the LR follows it)"
     )
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--lr", type=float, default=2e-3, help="peak learning rate")
+    ap.add_argument("--warmup", type=float, default=0.03, help="warm-up share of the run")
+    ap.add_argument("--init", type=Path, default=None, help="state dict to continue from")
+    ap.add_argument(
+        "--train-sets", default="train", help="training sets, e.g. train,train2 (concatenated)"
+    )
+    ap.add_argument("--checkpoint", type=Path, default=None, help="where to save the state dict")
     ap.add_argument("--stage", choices=("data", "all"), default="all")
     ap.add_argument("--sets", default="train,calib,test")
     ap.add_argument("--report", type=Path, default=Path("/tmp/slot_ids_report.json"))
@@ -468,9 +489,19 @@ def main() -> None:
         return
     import torch
 
-    data = {"train": generate("train", args.cache)}
-    model, train_s, done = train(data["train"], args.steps, args.batch, args.seed, args.minutes)
-    torch.save(model.state_dict(), args.cache / "slot_ids.pt")
+    parts = [generate(name, args.cache) for name in args.train_sets.split(",")]
+    data = {"train": {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}}
+    model, train_s, done = train(
+        data["train"],
+        args.steps,
+        args.batch,
+        args.seed,
+        args.minutes,
+        lr_max=args.lr,
+        warmup=args.warmup,
+        init=args.init,
+    )
+    torch.save(model.state_dict(), args.checkpoint or args.cache / "slot_ids.pt")
     data["calib"] = generate("calib", args.cache)
     data["test"] = generate("test", args.cache)
     cal_logits = predict_logits(model, data["calib"]["patches"])
