@@ -59,6 +59,7 @@ import numpy as np
 from semslam import __version__
 from semslam.errors import DriveError, FormatError
 from semslam.geometry import FloatArray
+from semslam.pipeline.drive_output import commit_drive_folder, prepare_drive_folder
 from semslam.progress import progress_bar
 
 VECTOR_MAP_JSON = "vector_map.json"
@@ -228,11 +229,16 @@ def track_odometry(
         # soft residuals (rows of W): turn, slip, position
         r_rows = [k, k, n - 1 + np.arange(n), 2 * n - 1 + np.arange(2 * n)]
         r_cols = [k + 1, k, np.arange(n), nx + np.arange(ne)]
-        r_vals = [np.full(n - 1, 1 / turn_sigma), np.full(n - 1, -1 / turn_sigma),
-                  np.full(n, 1 / slip_sigma), np.full(ne, 1 / position_sigma)]
-        W = sp.csr_matrix((np.concatenate(r_vals), (np.concatenate(r_rows),
-                                                      np.concatenate(r_cols))),
-                          shape=(4 * n - 1, nx + ne))
+        r_vals = [
+            np.full(n - 1, 1 / turn_sigma),
+            np.full(n - 1, -1 / turn_sigma),
+            np.full(n, 1 / slip_sigma),
+            np.full(ne, 1 / position_sigma),
+        ]
+        W = sp.csr_matrix(
+            (np.concatenate(r_vals), (np.concatenate(r_rows), np.concatenate(r_cols))),
+            shape=(4 * n - 1, nx + ne),
+        )
         # residuals = W z + w_fixed for the unknowns z = (x, E): x the heading increments,
         # E the position errors themselves (so nothing fixed on their rows)
         w_fixed = np.concatenate([np.diff(dev) / turn_sigma, dev / slip_sigma, np.zeros(ne)])
@@ -249,8 +255,10 @@ def track_odometry(
         rows += [np.array([m, m + 1, m + 2])]
         cols += [np.array([nx, nx + 1, 0])]
         vals += [np.ones(3)]
-        C = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(m + 3, nx + ne))
+        C = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(m + 3, nx + ne),
+        )
         d = np.concatenate([error_step.ravel(), np.zeros(3)])
         H = (W.T @ W).tocsc()
         g = -(W.T @ w_fixed)
@@ -344,7 +352,7 @@ def import_garage_bev(
     frames: list[FrameObservations] = []
     paths: list[str] = []
     shape = None
-    tmp = _prepare_output(out_dir)
+    tmp = prepare_drive_folder(out_dir, DriveError)
     try:
         with progress_bar(len(pick), "masks", show_progress) as bar:
             for i in pick:
@@ -362,12 +370,13 @@ def import_garage_bev(
                     )
                 if crop_rows:
                     mask[:crop_rows] = False
-                    mask[max(mask.shape[0] - crop_rows, 0):] = False
+                    mask[max(mask.shape[0] - crop_rows, 0) :] = False
                 h, w = mask.shape
                 observations = []
                 for o in detector.detect_mask(mask, METRES_PER_PX, (w / 2, h / 2)):
-                    vE = to_vehicle(np.array([o.vA, o.vB]), offset,
-                                    heading + slip[rec.mask_pose[i]])
+                    vE = to_vehicle(
+                        np.array([o.vA, o.vB]), offset, heading + slip[rec.mask_pose[i]]
+                    )
                     observations.append(MarkingObservation(vE[0], vE[1], o.width, o.confidence))
                 frames.append(
                     FrameObservations(t=float(rec.mask_times[i]), markings=tuple(observations))
@@ -394,9 +403,11 @@ def import_garage_bev(
             tmp / VECTOR_MAP_JSON,
             SemanticMap(
                 markings=tuple(Marking(s[0].copy(), s[1].copy(), 0.1) for s in segments),
-                metadata={"generator": f"semslam {__version__}",
-                          "source": os.fspath(src.resolve() / "vector_map"),
-                          "frame": "map x = Ly, map y = Bx"},
+                metadata={
+                    "generator": f"semslam {__version__}",
+                    "source": os.fspath(src.resolve() / "vector_map"),
+                    "frame": "map x = Ly, map y = Bx",
+                },
             ),
         )
         start = poses[0].copy()
@@ -426,17 +437,19 @@ def import_garage_bev(
                     "dead_reckoning_open_loop_max_m": round(open_loop_drift, 3),
                     "slip_angle_max_deg": round(math.degrees(float(np.abs(slip).max())), 3),
                     "slip_angle_p95_deg": round(
-                        math.degrees(float(np.percentile(np.abs(slip), 95))), 3),
+                        math.degrees(float(np.percentile(np.abs(slip), 95))), 3
+                    ),
                 },
                 observations=(OBSERVATION_SET,),
             ),
         )
-        atomic_write_text(tmp / CONFIG_JSON, json.dumps({"mapping": DRIVE_MAPPING_CONFIG},
-                                                        indent=2) + "\n")
+        atomic_write_text(
+            tmp / CONFIG_JSON, json.dumps({"mapping": DRIVE_MAPPING_CONFIG}, indent=2) + "\n"
+        )
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _commit_output(tmp, out_dir)
+    commit_drive_folder(tmp, out_dir)
     steps = np.hypot(*np.diff(rec.odometry_poses[:, :2], axis=0).T)
     return ImportSummary(
         folder=out_dir,
@@ -453,32 +466,3 @@ def import_garage_bev(
         slip_angle_max_deg=math.degrees(float(np.abs(slip).max())),
         seconds=time.perf_counter() - started,
     )
-
-
-def _prepare_output(out_dir: Path) -> Path:
-    """A fresh temporary folder beside ``out_dir`` (which may hold only an old drive)."""
-    out_dir = out_dir.resolve()
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise DriveError(f"{out_dir}: exists and is not a folder")
-        if any(out_dir.iterdir()) and not (out_dir / "drive.json").exists():
-            raise DriveError(
-                f"{out_dir}: folder is not empty and holds no drive; choose another output folder"
-            )
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    return tmp
-
-
-def _commit_output(tmp: Path, out_dir: Path) -> None:
-    out_dir = out_dir.resolve()
-    old = None
-    if out_dir.exists():
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        out_dir.rename(old)
-    tmp.rename(out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

@@ -6,7 +6,6 @@ atomically, shows progress and leaves the configuration beside the results.
 
 from __future__ import annotations
 
-import os
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -18,6 +17,7 @@ import numpy as np
 from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import SimulationError
+from semslam.pipeline.drive_output import commit_drive_folder, prepare_drive_folder
 from semslam.progress import progress_bar
 
 
@@ -37,37 +37,6 @@ class SimulationSummary:
     markings: int
     images: bool
     seconds: float
-
-
-def _prepare_output(out_dir: Path) -> Path:
-    """A fresh temporary folder beside ``out_dir``; refuses to overwrite a folder that holds
-    anything but a drive (an existing drive is replaced only once the new one is complete)."""
-    out_dir = out_dir.resolve()
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise SimulationError(f"{out_dir}: exists and is not a folder")
-        if any(out_dir.iterdir()) and not (out_dir / "drive.json").exists():
-            raise SimulationError(
-                f"{out_dir}: folder is not empty and holds no drive; choose another output folder"
-            )
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    return tmp
-
-
-def _commit_output(tmp: Path, out_dir: Path) -> None:
-    """Move the finished ``tmp`` folder to ``out_dir``, replacing an old drive there."""
-    out_dir = out_dir.resolve()
-    old = None
-    if out_dir.exists():
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        out_dir.rename(old)
-    tmp.rename(out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- image rendering
@@ -169,7 +138,7 @@ def simulate(
     from semslam.simulation.scenario import simulate_drive
 
     started = time.perf_counter()
-    tmp = _prepare_output(out_dir)
+    tmp = prepare_drive_folder(out_dir, SimulationError)
     try:
         sim = simulate_drive(preset, seed, drive_index, config.simulation)
         rec = sim.record
@@ -209,7 +178,7 @@ def simulate(
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _commit_output(tmp, out_dir)
+    commit_drive_folder(tmp, out_dir)
     steps = np.linalg.norm(np.diff(sim.frame_poses[:, :2], axis=0), axis=1)
     return SimulationSummary(
         folder=out_dir,

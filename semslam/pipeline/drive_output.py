@@ -1,0 +1,45 @@
+"""Writing a whole drive folder atomically: built in a temporary folder beside the target,
+then renamed into place, so a drive folder appears only when complete and an old drive
+there is replaced only then."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from semslam.errors import SemslamError
+
+
+def prepare_drive_folder(out_dir: Path, error: type[SemslamError]) -> Path:
+    """A fresh temporary folder beside ``out_dir``; ``error`` (one line) when ``out_dir``
+    is a file, or a non-empty folder that holds no drive (it is never overwritten)."""
+    out_dir = Path(out_dir).resolve()
+    if out_dir.exists():
+        if not out_dir.is_dir():
+            raise error(f"{out_dir}: exists and is not a folder")
+        if any(out_dir.iterdir()) and not (out_dir / "drive.json").exists():
+            raise error(
+                f"{out_dir}: folder is not empty and holds no drive; choose another output folder"
+            )
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
+
+
+def commit_drive_folder(tmp: Path, out_dir: Path) -> None:
+    """Move the finished ``tmp`` folder to ``out_dir``, replacing an old drive there."""
+    out_dir = Path(out_dir).resolve()
+    old = None
+    if out_dir.exists():
+        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+        out_dir.rename(old)
+    tmp.rename(out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+__all__ = ["commit_drive_folder", "prepare_drive_folder"]
