@@ -32,7 +32,6 @@ with a mask file are listed. Numpy only; every bad input raises
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from dataclasses import dataclass
@@ -44,6 +43,7 @@ from semslam.errors import DriveError, FormatError
 from semslam.geometry import FloatArray
 from semslam.io._rows import parse_number
 from semslam.io._text import read_text
+from semslam.io.tum import read_tum_rows
 
 COLOR_TXT = "color.txt"
 ODOMETRY_TUM = "TUM_odmetry_interpolation.txt"
@@ -57,7 +57,6 @@ LANE_LINE_RGB = (0, 128, 0)  # lane / dashed lines
 MATCH_TOLERANCE_S = 1e-3  # a frame and a pose are the same instant within this
 
 _MASK_NAME = re.compile(r"(\d+)\.png\Z")
-_TUM_COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,36 +175,12 @@ def read_odometry_poses(path: str | os.PathLike[str]) -> tuple[FloatArray, Float
             quaternion, a pose whose forward axis is vertical, time not strictly
             increasing; the message names the file and line.
     """
-    name = os.fspath(path)
-    rows: list[list[float]] = []
-    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        where = f"{name} line {lineno}"
-        tokens = text.split()
-        if len(tokens) != len(_TUM_COLUMNS):
-            raise FormatError(
-                f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}"
-            )
-        row = [
-            parse_number(tok, where, c, FormatError)
-            for tok, c in zip(tokens, _TUM_COLUMNS, strict=True)
-        ]
-        if math.hypot(*row[4:]) < 1e-9:
-            raise FormatError(f"{where}: quaternion has zero length")
-        if rows and not row[0] > rows[-1][0]:
-            raise FormatError(
-                f"{where}: time {row[0]!r} does not increase (previous {rows[-1][0]!r})"
-            )
-        forward = _body_y_axis(np.array(row[4:]))
-        if math.hypot(forward[0], forward[1]) < 1e-3:
-            raise FormatError(f"{where}: the body's forward (y) axis is vertical")
-        rows.append(row)
-    if not rows:
-        raise FormatError(f"{name}: no poses (empty trajectory)")
-    data = np.array(rows)
+    data, lines = read_tum_rows(path)
     forward = _body_y_axis(data[:, 4:8])
+    vertical = np.nonzero(np.hypot(forward[:, 0], forward[:, 1]) < 1e-3)[0]
+    if len(vertical):
+        where = f"{os.fspath(path)} line {lines[int(vertical[0])]}"
+        raise FormatError(f"{where}: the body's forward (y) axis is vertical")
     yaw = np.unwrap(np.arctan2(forward[:, 1], forward[:, 0]))
     return data[:, 0].copy(), np.column_stack([data[:, 1], data[:, 2], yaw])
 

@@ -51,13 +51,9 @@ def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> N
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
-def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
-    """Read a TUM trajectory; '#' comments and blank lines are skipped; z, roll and pitch
-    are dropped.
-
-    Returns:
-        ``(t, poses)``: (N,) times in seconds and (N, 3) poses ``(x, y, yaw)``,
-        yaw wrapped to (-pi, pi].
+def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
+    """The rows ``t x y z qx qy qz qw`` (N, 8) of a TUM file, checked, with the line number
+    of each (for readers that add their own checks); '#' comments and blank lines skipped.
 
     Raises:
         FormatError: missing file, no poses, wrong column count, a non-number,
@@ -65,7 +61,8 @@ def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
             the message names the file and line.
     """
     name = os.fspath(path)
-    rows: list[tuple[float, float, float, float]] = []
+    rows: list[list[float]] = []
+    lines: list[int] = []
     previous: float | None = None
     for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
         text = line.strip()
@@ -77,16 +74,32 @@ def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
             raise FormatError(
                 f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}"
             )
-        t, x, y, _z, qx, qy, qz, qw = (
+        row = [
             parse_number(tok, where, col, FormatError)
             for tok, col in zip(tokens, _COLUMNS, strict=True)
-        )
-        if math.hypot(qx, qy, qz, qw) < 1e-9:
+        ]
+        if math.hypot(*row[4:]) < 1e-9:
             raise FormatError(f"{where}: quaternion has zero length")
-        check_time_order(previous, t, where, FormatError)
-        previous = t
-        rows.append((t, x, y, quaternion_to_yaw(qx, qy, qz, qw)))
+        check_time_order(previous, row[0], where, FormatError)
+        previous = row[0]
+        rows.append(row)
+        lines.append(lineno)
     if not rows:
         raise FormatError(f"{name}: no poses (empty trajectory)")
-    data = np.array(rows, dtype=float)
-    return data[:, 0].copy(), data[:, 1:].copy()
+    return np.array(rows, dtype=float), lines
+
+
+def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
+    """Read a TUM trajectory; '#' comments and blank lines are skipped; z, roll and pitch
+    are dropped.
+
+    Returns:
+        ``(t, poses)``: (N,) times in seconds and (N, 3) poses ``(x, y, yaw)``,
+        yaw wrapped to (-pi, pi].
+
+    Raises:
+        FormatError: as :func:`read_tum_rows`.
+    """
+    rows, _ = read_tum_rows(path)
+    yaw = [quaternion_to_yaw(*q) for q in rows[:, 4:8]]
+    return rows[:, 0].copy(), np.column_stack([rows[:, 1], rows[:, 2], yaw])
