@@ -335,7 +335,7 @@ def train(args: argparse.Namespace) -> None:
     import torch
 
     torch.manual_seed(args.seed)
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
     lo, hi = (int(v) for v in args.train_worlds.split(":"))
     data = render_dataset(
@@ -553,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
         default=Path(__file__).resolve().parents[2] / "shared/realdata/ps2.0-samples",
     )
     p.add_argument("--init", type=Path, default=None, help="start from these torch weights")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
     p.add_argument("--threshold", type=float, default=None, help="point confidence (eval)")
     args = p.parse_args(argv)
