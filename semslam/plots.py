@@ -6,6 +6,8 @@
 - :func:`error_figure`: position error and 3-sigma bound over time, with the status.
 - :func:`audit_figure`: what became of the slot observations (accepted, reassigned,
   null hypothesis, pooled), overall and per slot.
+- :func:`accuracy_figure`, :func:`tag_plan_figure`: predicted accuracy (grid and route)
+  and proposed tags with accuracy against their number.
 """
 
 from __future__ import annotations
@@ -51,6 +53,21 @@ def _ellipse(mean: FloatArray, cov: FloatArray, k: float = 3.0, n: int = 40) -> 
     a = np.linspace(0.0, 2 * math.pi, n)
     circle = np.stack([np.cos(a), np.sin(a)], axis=1) * k * np.sqrt(np.maximum(w, 0.0))
     return np.asarray(mean, float) + circle @ v.T
+
+
+def _outline(
+    ax, semantic_map: SemanticMap, slots: str, lines: str, tags: str | None, width: float
+) -> None:
+    """The map's slots and painted lines as thin outlines, its tags as squares (if a
+    colour is given)."""
+    for s in semantic_map.slots:
+        c = np.vstack([s.corners, s.corners[:1]])
+        ax.plot(c[:, 0], c[:, 1], color=slots, lw=width)
+    for m in semantic_map.markings:
+        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color=lines, lw=width)
+    if tags is not None:
+        for t in semantic_map.tags:
+            ax.plot(t.mTt[0], t.mTt[1], "s", color=tags, ms=5)
 
 
 def map_figure(
@@ -126,9 +143,14 @@ def trajectory_figure(
     span = np.ptp(truth[:, :2], axis=0)
     fig, ax = plt.subplots(figsize=(14, max(4.0, 14 * (span[1] + 10) / (span[0] + 10))), dpi=100)
     if semantic_map is not None:
-        for s in semantic_map.slots:
-            c = np.vstack([s.corners, s.corners[:1]])
-            ax.plot(c[:, 0], c[:, 1], color="0.8", lw=0.6)
+        _outline(
+            ax,
+            SemanticMap(slots=semantic_map.slots),
+            slots="0.8",
+            lines="0.8",
+            tags=None,
+            width=0.6,
+        )
     ax.plot(truth[:, 0], truth[:, 1], color="0.4", lw=3.0, alpha=0.4, label="truth")
     seg = np.stack([estimate[:-1, :2], estimate[1:, :2]], axis=1)
     hi = max(float(np.percentile(error, 99)), 0.05)
@@ -226,4 +248,101 @@ def audit_figure(
     return _png(fig)
 
 
-__all__ = ["audit_figure", "error_figure", "map_figure", "trajectory_figure"]
+def accuracy_figure(
+    semantic_map: SemanticMap,
+    xs: FloatArray,
+    ys: FloatArray,
+    grid: FloatArray,
+    route_xy: FloatArray | None,
+    route_sigma: FloatArray | None,
+    threshold: float,
+) -> bytes:
+    """Predicted accuracy: the grid's single-frame sigma (H, W over ``xs``, ``ys``) as a
+    heat map under the map, and the route (N, 2) coloured by its filtered sigma (m)."""
+    plt = _plt()
+    from matplotlib.collections import LineCollection
+
+    width = max(xs[-1] - xs[0], 1.0)
+    height = max(ys[-1] - ys[0], 1.0)
+    fig, ax = plt.subplots(figsize=(12, max(3.0, 12 * height / width) + 1), dpi=110)
+    shown = np.where(np.isfinite(grid), grid, np.nan)
+    image = ax.imshow(
+        shown,
+        origin="lower",
+        extent=(xs[0], xs[-1], ys[0], ys[-1]),
+        cmap="viridis_r",
+        vmin=0.0,
+        vmax=max(
+            float(np.nanpercentile(shown, 95)) if np.isfinite(shown).any() else threshold, 1e-3
+        ),
+        alpha=0.8,
+    )
+    fig.colorbar(
+        image,
+        ax=ax,
+        fraction=0.04,
+        pad=0.08,
+        orientation="horizontal",
+        label="single-frame sigma, m (worst heading)",
+    )
+    _outline(ax, semantic_map, slots="white", lines="0.85", tags="red", width=0.6)
+    if route_xy is not None and len(route_xy) > 1:
+        segments = np.stack([route_xy[:-1], route_xy[1:]], axis=1)
+        sig = np.minimum(np.where(np.isfinite(route_sigma), route_sigma, 10.0), 10.0)[1:]
+        lc = LineCollection(segments, cmap="RdYlGn_r", norm=plt.Normalize(0.0, 2 * threshold))
+        lc.set_array(sig)
+        lc.set_linewidth(2.5)
+        ax.add_collection(lc)
+        fig.colorbar(lc, ax=ax, fraction=0.025, label="filtered sigma on the route, m")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, m")
+    ax.set_ylabel("y, m")
+    ax.set_title("predicted positioning accuracy (red squares: tags)")
+    return _png(fig)
+
+
+def tag_plan_figure(
+    semantic_map: SemanticMap, poses: FloatArray, steps: Sequence, even: Sequence
+) -> bytes:
+    """Proposed tags (numbered, in order) along the route, and the worst / 95th-percentile
+    sigma against the number of tags, greedy and evenly spread
+    (:class:`~semslam.analysis.tag_placement.PlacementStep` lists)."""
+    plt = _plt()
+
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(15, 5.5), dpi=100, gridspec_kw={"width_ratios": [2.6, 1]}
+    )
+    _outline(ax, semantic_map, slots="0.6", lines="0.75", tags="0.3", width=0.5)
+    ax.plot(poses[:, 0], poses[:, 1], color="tab:blue", lw=1.0)
+    for s in steps[1:]:
+        x, y, yaw = s.tag
+        ax.plot(x, y, "s", color="red", ms=7)
+        ax.annotate(
+            "",
+            (x + 2.0 * math.cos(yaw), y + 2.0 * math.sin(yaw)),
+            (x, y),
+            arrowprops={"arrowstyle": "->", "color": "red"},
+        )
+        ax.text(x + 0.8, y + 0.8, str(s.count), color="red", fontsize=9, weight="bold")
+    ax.set_aspect("equal")
+    ax.set_title("proposed tags (red, in order; grey: the map's)")
+    ks = [s.count for s in steps]
+    bx.plot(ks, [s.worst_m for s in steps], "o-", label="greedy: worst")
+    bx.plot(ks, [s.p95_m for s in steps], "o--", label="greedy: 95th percentile")
+    bx.plot([e.count for e in even], [e.worst_m for e in even], "s-", label="evenly spread: worst")
+    bx.axhline(0.2, color="0.5", lw=0.8, ls=":")
+    bx.set_xlabel("tags added")
+    bx.set_ylabel("filtered position sigma on the route, m")
+    bx.legend()
+    bx.grid(alpha=0.3)
+    return _png(fig)
+
+
+__all__ = [
+    "accuracy_figure",
+    "audit_figure",
+    "error_figure",
+    "map_figure",
+    "tag_plan_figure",
+    "trajectory_figure",
+]

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semslam.geometry import FloatArray, clip_segment
+from semslam.geometry import FloatArray, clip_segment, rotation
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
 
@@ -81,11 +81,6 @@ GRADES = {
 """Hofmann's two grades: a precise IMU and automotive sensors."""
 
 
-def _rotation(yaw: float) -> FloatArray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s], [s, c]])
-
-
 def _in_topview(vP: FloatArray, s: SensorModel) -> np.ndarray:
     inside = (np.abs(vP) <= s.topview_half_m).all(axis=1)
     ego = (np.abs(vP[:, 0]) <= s.ego_half_length_m) & (np.abs(vP[:, 1]) <= s.ego_half_width_m)
@@ -123,7 +118,7 @@ def frame_information(
     Map covariances add to the measurement covariance (projected into the vehicle frame).
     """
     pose = np.asarray(pose, float)
-    R = _rotation(pose[2])
+    R = rotation(pose[2])
     info = np.zeros((3, 3))
     counts = {"corners": 0, "tags": 0, "lines": 0}
     # slot corners: vP = R^T (mP - t)

@@ -251,7 +251,6 @@ def refine_depth(
     if depth < 1e-6:
         return slot
     h, w = topview_bgr.shape[:2]
-    paint = (topview_bgr[:, :, 1].astype(np.float32) + topview_bgr[:, :, 2]) / 2.0
     base = math.atan2(depth_vec[1], depth_vec[0])
     angles = base + np.radians(np.arange(-search_deg, search_deg + 1e-9, step_deg))
     t = np.arange(0.25, min(3.0, depth * spec.metres_per_px), 0.05) / spec.metres_per_px
@@ -261,8 +260,9 @@ def refine_depth(
         u = start[0] + np.cos(angles)[:, None] * t[None, :]
         v = start[1] + np.sin(angles)[:, None] * t[None, :]
         inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-        values = cv2.remap(paint, u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR)
-        score += np.where(inside, values, 0.0).sum(axis=1)
+        bgr = cv2.remap(topview_bgr, u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR)
+        paint = (bgr[..., 1].astype(np.float32) + bgr[..., 2]) / 2.0  # only the rays' pixels
+        score += np.where(inside, paint, 0.0).sum(axis=1)
         counts += inside.sum(axis=1)
     if counts.min() < 10:
         return slot

@@ -81,7 +81,6 @@ class TopviewPerception:
 
     def detect(self, topview: np.ndarray) -> TopviewDetections:
         """Marking points, slots with their IDs, and lines of one BGR uint8 top view."""
-        timings: dict[str, float] = {}
         t0 = time.perf_counter()
         points, slots = self.slot_detector.detect(topview)
         t1 = time.perf_counter()
@@ -110,7 +109,7 @@ class TopviewPerception:
                 slot,
                 self.spec,
                 reading.label,
-                reading.confidence if reading.label else 0.0,
+                reading.confidence,
                 self.corner_sigma,
             )
             for slot, reading in zip(detections.slots, detections.ids, strict=True)

@@ -8,7 +8,6 @@ route coloured by the filtered sigma) into the output folder, atomically.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
@@ -61,6 +60,7 @@ def predicted_accuracy(
     from semslam.io import load_map
     from semslam.io.atomic import atomic_write_bytes, atomic_write_text
     from semslam.io.tum import read_tum
+    from semslam.plots import accuracy_figure
 
     if grade not in GRADES:
         raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
@@ -116,67 +116,11 @@ def predicted_accuracy(
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(
         out / "accuracy_map.png",
-        _picture(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold),
+        accuracy_figure(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold),
     )
     atomic_write_text(out / "accuracy.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "accuracy.json"), os.fspath(out / "accuracy_map.png")]
     return result
-
-
-def _picture(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold) -> bytes:
-    """PNG bytes: grid heat map, map elements, route coloured by filtered sigma."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-
-    width = max(xs[-1] - xs[0], 1.0)
-    height = max(ys[-1] - ys[0], 1.0)
-    fig, ax = plt.subplots(figsize=(12, max(3.0, 12 * height / width) + 1), dpi=110)
-    shown = np.where(np.isfinite(grid), grid, np.nan)
-    image = ax.imshow(
-        shown,
-        origin="lower",
-        extent=(xs[0], xs[-1], ys[0], ys[-1]),
-        cmap="viridis_r",
-        vmin=0.0,
-        vmax=max(
-            float(np.nanpercentile(shown, 95)) if np.isfinite(shown).any() else threshold, 1e-3
-        ),
-        alpha=0.8,
-    )
-    fig.colorbar(
-        image,
-        ax=ax,
-        fraction=0.04,
-        pad=0.08,
-        orientation="horizontal",
-        label="single-frame sigma, m (worst heading)",
-    )
-    for slot in semantic_map.slots:
-        c = np.vstack([slot.corners, slot.corners[:1]])
-        ax.plot(c[:, 0], c[:, 1], color="white", lw=0.6)
-    for m in semantic_map.markings:
-        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color="0.85", lw=0.6)
-    for tag in semantic_map.tags:
-        ax.plot(tag.mTt[0], tag.mTt[1], marker="s", color="red", ms=5)
-    if route_xy is not None and len(route_xy) > 1:
-        segments = np.stack([route_xy[:-1], route_xy[1:]], axis=1)
-        sig = np.minimum(np.where(np.isfinite(route_sigma), route_sigma, 10.0), 10.0)[1:]
-        lc = LineCollection(segments, cmap="RdYlGn_r", norm=plt.Normalize(0.0, 2 * threshold))
-        lc.set_array(sig)
-        lc.set_linewidth(2.5)
-        ax.add_collection(lc)
-        fig.colorbar(lc, ax=ax, fraction=0.025, label="filtered sigma on the route, m")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x, m")
-    ax.set_ylabel("y, m")
-    ax.set_title("predicted positioning accuracy (red squares: tags)")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", bbox_inches="tight")
-    plt.close(fig)
-    return buf.getvalue()
 
 
 __all__ = ["TARGET_SIGMA_M", "predicted_accuracy"]

@@ -27,8 +27,9 @@ def _median_ms(samples: list[float]) -> float:
     return round(statistics.median(samples) * 1e3, 3)
 
 
-def perception_timings(frames: int = 40, seed: int = 1) -> dict[str, Any]:
-    """Median per-stage times (ms) over ``frames`` frames of a simulated garage drive."""
+def perception_timings(config: SemslamConfig, frames: int = 40, seed: int = 1) -> dict[str, Any]:
+    """Median per-stage times (ms) over ``frames`` frames along the route of a simulated
+    garage drive (lane offset and turn radius from ``config.simulation.drive``)."""
     import cv2
 
     from semslam.perception.tags import TagSettings, observe_tags
@@ -44,7 +45,8 @@ def perception_timings(frames: int = 40, seed: int = 1) -> dict[str, Any]:
     cv2.setNumThreads(1)
     world = make_world("garage", seed)
     rig = surround_rig()
-    path = make_path(world, 0, 1.5, 4.0)
+    drive = config.simulation.drive
+    path = make_path(world, 0, drive.lane_offset, drive.turn_radius)
     picks = np.linspace(0, len(path.points) - 2, frames).astype(int)
     poses = []
     for k in picks:
@@ -132,7 +134,7 @@ def run_bench(
         "machine": (
             f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
         ),
-        **perception_timings(frames),
+        **perception_timings(config, frames),
     }
     log("mapping and localization ...")
     presets = ("small", "garage", "large") if large else ("small", "garage")

@@ -27,17 +27,6 @@ import numpy as np
 from semslam.config import SemslamConfig
 
 
-def _errors(traj: Path, truth: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Times, estimated poses and position errors of the trajectory's frames."""
-    from semslam.io.tum import read_tum
-
-    t, est = read_tum(traj)
-    tt, true = read_tum(truth)
-    index = np.searchsorted(tt, t - 1e-6)
-    index = np.clip(index, 0, len(tt) - 1)
-    return t, est, np.hypot(*(est[:, :2] - true[index, :2]).T)
-
-
 def run_demo(
     out_dir: Path,
     config: SemslamConfig,
@@ -49,12 +38,14 @@ def run_demo(
     """Run the whole demo into ``out_dir``; the results (also in ``results.json``)."""
     import cv2
 
+    from semslam.evaluation.trajectory_metrics import interpolate_poses
     from semslam.io import Drive, load_map
     from semslam.io.atomic import atomic_write_bytes, atomic_write_text
+    from semslam.io.images import read_image
     from semslam.io.track_csv import read_track_csv
     from semslam.io.tum import read_tum
     from semslam.perception.topview_perception import TopviewPerception
-    from semslam.pipeline.detect import draw_overlay, read_bgr
+    from semslam.pipeline.detect import draw_overlay
     from semslam.pipeline.evaluate import evaluate_map_files, evaluate_trajectory_files
     from semslam.pipeline.localize import localize_drive
     from semslam.pipeline.mapping import build_map
@@ -118,7 +109,9 @@ def run_demo(
 
     log(f"[{time.perf_counter() - started:6.0f} s] pictures and report")
     semantic_map, truth_map = load_map(map_path), load_map(drive_map / "world.json")
-    t, est, err = _errors(traj, drive_loc / "groundtruth.tum")
+    t, est = read_tum(traj)
+    true_at, _ = interpolate_poses(*read_tum(drive_loc / "groundtruth.tum"), t)
+    err = np.hypot(*(est[:, :2] - true_at[:, :2]).T)
     track = read_track_csv(traj.with_suffix(".csv"))
     sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(track.covariances[:, :2, :2])[:, 1], 0.0))
     audit_rows = [
@@ -127,19 +120,17 @@ def run_demo(
         if line
     ]
     per_slot = json.loads(map_path.with_name("map.audit.json").read_text())["slots"]
-    tt, true_all = read_tum(drive_loc / "groundtruth.tum")
-    index = np.clip(np.searchsorted(tt, t - 1e-6), 0, len(tt) - 1)
     figures = {
         "map.png": map_figure(semantic_map, truth_map, "map from images (drive 0)"),
         "trajectory.png": trajectory_figure(
-            est, true_all[index], err, semantic_map, "drive 1 localized against the map"
+            est, true_at, err, semantic_map, "drive 1 localized against the map"
         ),
         "error.png": error_figure(track.t, np.interp(track.t, t, err), sigma, track.status),
         "audit.png": audit_figure(audit_rows, per_slot),
     }
     perception, drive = TopviewPerception(), Drive.open(drive_loc)
     for k, i in enumerate(np.linspace(sim_loc.frames * 0.1, sim_loc.frames * 0.9, 3).astype(int)):
-        image = read_bgr(drive.image_path("topview", int(i)))
+        image = read_image(drive.image_path("topview", int(i)))
         overlay = draw_overlay(image, perception, perception.detect(image))
         figures[f"detections_{k + 1}.png"] = cv2.imencode(".png", overlay)[1].tobytes()
     for name, data in figures.items():

@@ -33,20 +33,10 @@ import numpy as np
 from semslam.errors import FormatError
 from semslam.evaluation.detection_metrics import DetectionCounts, score_image
 from semslam.io.atomic import atomic_write_bytes
+from semslam.io.images import read_image
 from semslam.perception.topview_perception import TopviewDetections, TopviewPerception
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
-
-
-def read_bgr(path: str | os.PathLike[str]) -> np.ndarray:
-    """An image file as BGR uint8 (grey images are expanded), or a one-line error."""
-    p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: no such image file")
-    image = cv2.imread(str(p), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FormatError(f"{p}: not an image OpenCV can read")
-    return image
 
 
 def _r(values: Any, digits: int = 3) -> Any:
@@ -148,7 +138,7 @@ def detect_files(
     perception = perception or TopviewPerception(lines=lines)
     out = []
     for path in images:
-        image = read_bgr(path)
+        image = read_image(path)
         det = perception.detect(image)
         out.append(
             {
@@ -197,7 +187,7 @@ def evaluate_detection_folder(
     timings: dict[str, list[float]] = {}
     for k, path in enumerate(labelled):
         labels = read_dmpr_labels(labels_dir / f"{path.stem}.json")
-        det = perception.detect(read_bgr(path))
+        det = perception.detect(read_image(path))
         points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
         total += score_image(
             points,
@@ -228,5 +218,4 @@ __all__ = [
     "detections_json",
     "draw_overlay",
     "evaluate_detection_folder",
-    "read_bgr",
 ]

@@ -24,7 +24,7 @@ _WORKER: dict[str, Any] = {}
 _CHUNK = 20
 
 
-def _init_worker(folder: str, config_json: str) -> None:
+def _init_worker(folder: str, config_json: str, has_top: bool, has_front: bool) -> None:
     import cv2
 
     from semslam.config import SemslamConfig
@@ -34,23 +34,19 @@ def _init_worker(folder: str, config_json: str) -> None:
 
     cv2.setNumThreads(1)
     drive = Drive.open(folder)
-    frames = drive.frames()
-    config = SemslamConfig.model_validate_json(config_json)
     _WORKER.clear()
     _WORKER.update(
         drive=drive,
-        frames=frames,
-        perception=TopviewPerception(spec=drive.rig.topview)
-        if "topview" in frames.images
-        else None,
-        front="front" in frames.images and "front" in drive.rig.cameras,
-        tag_settings=settings_from_config(config),
+        frames=drive.frames(),
+        perception=TopviewPerception(spec=drive.rig.topview) if has_top else None,
+        front=has_front,
+        tag_settings=settings_from_config(SemslamConfig.model_validate_json(config_json)),
     )
 
 
 def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
+    from semslam.io.images import read_image
     from semslam.perception.tags import observe_tags
-    from semslam.pipeline.detect import read_bgr
 
     drive, frames = _WORKER["drive"], _WORKER["frames"]
     perception = _WORKER["perception"]
@@ -58,10 +54,10 @@ def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
     for i in indices:
         slots, markings, tags = (), (), ()
         if perception is not None and frames.images["topview"][i]:
-            det = perception.detect(read_bgr(drive.image_path("topview", i)))
+            det = perception.detect(read_image(drive.image_path("topview", i)))
             slots, markings = perception.slot_observations(det), det.markings
         if _WORKER["front"] and frames.images["front"][i]:
-            image = read_bgr(drive.image_path("front", i))
+            image = read_image(drive.image_path("front", i), grey=True)
             tags = observe_tags(image, drive.rig.cameras["front"], _WORKER["tag_settings"])
         out.append(FrameObservations(float(frames.t[i]), slots, tags, markings))
     return out
@@ -91,7 +87,7 @@ def perceive_drive(
     workers = config.simulation.render.workers if workers is None else workers
     workers = max(1, min(int(workers), os.cpu_count() or 1))
     chunks = [list(range(k, min(k + _CHUNK, len(frames)))) for k in range(0, len(frames), _CHUNK)]
-    init_args = (os.fspath(Path(drive.folder)), config.model_dump_json())
+    init_args = (os.fspath(Path(drive.folder)), config.model_dump_json(), has_top, has_front)
     out: list[FrameObservations] = []
     with progress_bar(len(frames), "perception", show_progress) as bar:
         if workers == 1:

@@ -8,15 +8,12 @@ proposed tags numbered, and accuracy against K) into the output folder, atomical
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from semslam.errors import ConfigError
 
@@ -47,6 +44,7 @@ def plan_tags(
     from semslam.io import load_map
     from semslam.io.atomic import atomic_write_bytes, atomic_write_text
     from semslam.io.tum import read_tum
+    from semslam.plots import tag_plan_figure
     from semslam.types import SemanticMap
 
     if count < 1:
@@ -83,7 +81,7 @@ def plan_tags(
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "tag_plan.png", _picture(semantic_map, poses, steps, even))
+    atomic_write_bytes(out / "tag_plan.png", tag_plan_figure(semantic_map, poses, steps, even))
     atomic_write_text(out / "tag_plan.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
     return result
@@ -98,50 +96,6 @@ def _rounded(d: dict[str, Any]) -> dict[str, Any]:
             v = [round(float(x), 4) for x in v]
         out[k] = v
     return out
-
-
-def _picture(semantic_map, poses, steps, even) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(
-        1, 2, figsize=(15, 5.5), dpi=100, gridspec_kw={"width_ratios": [2.6, 1]}
-    )
-    for slot in semantic_map.slots:
-        c = np.vstack([slot.corners, slot.corners[:1]])
-        ax.plot(c[:, 0], c[:, 1], color="0.6", lw=0.5)
-    for m in semantic_map.markings:
-        ax.plot([m.a[0], m.b[0]], [m.a[1], m.b[1]], color="0.75", lw=0.5)
-    for tag in semantic_map.tags:
-        ax.plot(tag.mTt[0], tag.mTt[1], "s", color="0.3", ms=5)
-    ax.plot(poses[:, 0], poses[:, 1], color="tab:blue", lw=1.0)
-    for s in steps[1:]:
-        x, y, yaw = s.tag
-        ax.plot(x, y, "s", color="red", ms=7)
-        ax.annotate(
-            "",
-            (x + 2.0 * math.cos(yaw), y + 2.0 * math.sin(yaw)),
-            (x, y),
-            arrowprops={"arrowstyle": "->", "color": "red"},
-        )
-        ax.text(x + 0.8, y + 0.8, str(s.count), color="red", fontsize=9, weight="bold")
-    ax.set_aspect("equal")
-    ax.set_title("proposed tags (red, in order; grey: the map's)")
-    ks = [s.count for s in steps]
-    bx.plot(ks, [s.worst_m for s in steps], "o-", label="greedy: worst")
-    bx.plot(ks, [s.p95_m for s in steps], "o--", label="greedy: 95th percentile")
-    bx.plot([e.count for e in even], [e.worst_m for e in even], "s-", label="evenly spread: worst")
-    bx.axhline(0.2, color="0.5", lw=0.8, ls=":")
-    bx.set_xlabel("tags added")
-    bx.set_ylabel("filtered position sigma on the route, m")
-    bx.legend()
-    bx.grid(alpha=0.3)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", bbox_inches="tight")
-    plt.close(fig)
-    return buf.getvalue()
 
 
 __all__ = ["plan_tags"]

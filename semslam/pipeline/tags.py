@@ -24,12 +24,10 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from pathlib import Path
 
-import cv2
 import numpy as np
 
-from semslam.errors import FormatError
+from semslam.io.images import read_image
 from semslam.perception.tag_detection import DetectorSettings, PerceptionError, parse_family
 from semslam.perception.tag_pose import PositionVariant
 from semslam.perception.tags import TagEstimate, TagSettings, estimate_tags
@@ -49,7 +47,9 @@ def parse_numbers(text: str, name: str, counts: Sequence[int]) -> list[float]:
 
 
 def make_camera(
-    intrinsics: Sequence[float], distortion: Sequence[float] | None, fisheye: bool,
+    intrinsics: Sequence[float],
+    distortion: Sequence[float] | None,
+    fisheye: bool,
     size: tuple[int, int],
 ) -> Camera:
     """A camera at the origin from fx, fy, cx, cy and optional distortion coefficients."""
@@ -62,17 +62,6 @@ def make_camera(
         raise PerceptionError("--fisheye needs --distortion with 4 coefficients (k1..k4)")
     model = CameraModel.FISHEYE if fisheye else CameraModel.PINHOLE
     return Camera("cli", model, K, D, size, np.eye(4))
-
-
-def read_gray(path: str | os.PathLike[str]) -> np.ndarray:
-    """An image file as 8-bit grey, or a one-line error naming the file."""
-    p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: no such image file")
-    image = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise FormatError(f"{p}: not an image OpenCV can read")
-    return image
 
 
 def _matrix(a: np.ndarray, digits: int) -> list:
@@ -94,9 +83,13 @@ def detection_json(est: TagEstimate) -> dict:
         "range": round(est.range, 6),
         "ambiguity": round(pose.ambiguity, 4),
         "reprojection_error_px": round(pose.best.error, 4),
-        "alternative": None if alt is None else {
-            "position": _matrix(alt.t, 6), "rotation": _matrix(alt.R, 6),
-            "reprojection_error_px": round(alt.error, 4)},
+        "alternative": None
+        if alt is None
+        else {
+            "position": _matrix(alt.t, 6),
+            "rotation": _matrix(alt.R, 6),
+            "reprojection_error_px": round(alt.error, 4),
+        },
         "flip_probability": round(est.flip_probability, 4),
         "covariance": [[float(f"{v:.6g}") for v in row] for row in est.covariance],
         "hamming": det.hamming,
@@ -128,21 +121,29 @@ def tags_in_images(
         raise PerceptionError(f"--variant must be pnp or tiev, got {variant!r}") from None
     if not (math.isfinite(decimate) and decimate >= 1.0):
         raise PerceptionError(f"--decimate must be a number >= 1, got {decimate}")
-    settings = TagSettings(family=parse_family(family), size=float(tag_size),
-                           variant=position_variant,
-                           detector=DetectorSettings(quad_decimate=float(decimate)))
+    settings = TagSettings(
+        family=parse_family(family),
+        size=float(tag_size),
+        variant=position_variant,
+        detector=DetectorSettings(quad_decimate=float(decimate)),
+    )
     out = []
     for path in images:
-        gray = read_gray(path)
+        gray = read_image(path, grey=True)
         camera = make_camera(intrinsics, distortion, fisheye, (gray.shape[1], gray.shape[0]))
         try:
             estimates = estimate_tags(gray, camera, settings)
         except PerceptionError as e:
             raise PerceptionError(f"{path}: {e}") from None
-        out.append({"image": str(path), "width": int(gray.shape[1]),
-                    "height": int(gray.shape[0]),
-                    "detections": [detection_json(e) for e in estimates]})
+        out.append(
+            {
+                "image": str(path),
+                "width": int(gray.shape[1]),
+                "height": int(gray.shape[0]),
+                "detections": [detection_json(e) for e in estimates],
+            }
+        )
     return {"images": out}
 
 
-__all__ = ["detection_json", "make_camera", "parse_numbers", "read_gray", "tags_in_images"]
+__all__ = ["detection_json", "make_camera", "parse_numbers", "tags_in_images"]
