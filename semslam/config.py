@@ -150,6 +150,13 @@ class MappingConfig(_Section):
     )
     id_gate: float = Field(2.0, gt=0, description="mean corner distance for an ID candidate, m")
     max_candidates: int = Field(3, ge=1)
+    fuse_frames_max: int = Field(
+        3, ge=1, description="detections of one slot (keyframe + frames before it) fused "
+        "into one factor; 1: keyframe frames only"
+    )
+    fuse_radius: float = Field(
+        0.3, gt=0, description="m: every corner this near the keyframe detection's to fuse"
+    )
     label_vote_gate: float = Field(
         0.4, gt=0, description="m: a slot read between keyframes votes for the landmark this near"
     )
@@ -251,6 +258,10 @@ class LocalizationConfig(_Section):
         0.6, ge=0, le=1, description="slot IDs read at least this confidently may relocalize"
     )
     relocalize_min_slots: int = Field(2, ge=1, description="slots that must agree to relocalize")
+    relocalize_single_slot_reads: int = Field(
+        5, ge=0, description="one slot whose ID the recent frames read alike this often is "
+        "enough to relocalize (0: never)"
+    )
     relocalize_window: float = Field(
         2.0, ge=0, description="s of recent frames, placed by odometry, used to relocalize"
     )

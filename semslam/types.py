@@ -57,6 +57,8 @@ class SlotObservation:
         label_confidence: probability in [0, 1] that ``label`` is right (0 without a label).
         confidence: probability in [0, 1] that the slot is real.
         corner_sigma: 1-sigma isotropic noise of each corner, metres.
+        label_reads: frames that read ``label`` (1 for a single frame; more for the
+            slot of several recent frames merged into one, :mod:`semslam.localization.recent`).
     """
 
     vCorners: FloatArray
@@ -65,6 +67,7 @@ class SlotObservation:
     label_confidence: float
     confidence: float
     corner_sigma: float
+    label_reads: int = 1
 
 
 @dataclass(frozen=True, eq=False)

@@ -91,6 +91,7 @@ class Localizer:
             min_label_confidence=cfg.relocalize_label_confidence,
             min_slots=cfg.relocalize_min_slots,
             max_tag_range=cfg.tag_range_limit,
+            single_slot_reads=cfg.relocalize_single_slot_reads,
         )
         self.odo_t = np.asarray(odometry_t, dtype=float)
         self.odo_v = np.asarray(odometry_speed, dtype=float)

@@ -11,7 +11,8 @@ current vehicle frame where
   slot with averaged corners and the label with the largest summed confidence; its
   confidence is the best confidence of a reading of that label times the winner's share
   of all summed confidences (a misread among several right readings loses, a split vote
-  is not confident, and one physical slot never counts as several agreeing slots);
+  is not confident, and one physical slot never counts as several agreeing slots); its
+  ``label_reads`` is the number of readings of that label;
 - with three or more frames remembered, a slot seen only once is dropped (false
   detections come and go from frame to frame; real slots stay in view);
 - the most recent observation of each tag is kept.
@@ -84,15 +85,17 @@ class RecentFrames:
                 if s.label is not None:
                     votes[s.label] = votes.get(s.label, 0.0) + s.label_confidence
             label = max(votes, key=votes.get) if votes else None
-            confidence = 0.0
+            confidence, reads = 0.0, 0
             if label is not None:  # the best reading of the winner, discounted by dissent
                 best = max(s.label_confidence for s in group if s.label == label)
                 confidence = best * votes[label] / sum(votes.values())
+                reads = sum(s.label == label for s in group)
             yield replace(
                 group[-1],
                 vCorners=corners[members].mean(axis=0),
                 label=label,
                 label_confidence=float(confidence),
+                label_reads=int(reads),
                 confidence=float(np.mean([s.confidence for s in group])),
             )
 

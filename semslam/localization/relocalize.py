@@ -32,7 +32,10 @@ A wrong pose is far worse than none, so every step refuses rather than guesses.
    that fit it, minus read labels that land on a map slot with another label, minus
    slots that land on no map slot, must still be at least ``min_slots`` (two neighbours'
    IDs misread with the same shift fit a pose one pitch off; the frame's other slots
-   then contradict it).
+   then contradict it). One labelled slot is enough when its label was read alike in
+   at least ``single_slot_reads`` frames (a slot of several recent frames merged into
+   one, :mod:`.recent`): misreads that vary from frame to frame do not agree that often;
+   the other checks stay (no rival pose as well supported, the frame not against it).
 4. An accepted slot pose is refined by :func:`fit_se2` over all corners of the agreeing
    slots (its supporters plus any observed slot lying within ``inlier_distance`` of a map
    slot, found with a k-d tree on the map slot centres, unless a confident label says
@@ -178,6 +181,8 @@ class Relocalizer:
             (and its net evidence, see the module docstring).
         inlier_distance: largest corner distance (m) of an agreeing slot.
         max_tag_range: tags farther than this from the vehicle (m) are ignored.
+        single_slot_reads: a labelled slot read alike in this many merged frames fixes
+            the pose alone (0: never; ``min_slots`` agreeing slots are needed).
     """
 
     def __init__(
@@ -188,8 +193,10 @@ class Relocalizer:
         min_slots: int = 2,
         inlier_distance: float = 0.35,
         max_tag_range: float = 20.0,
+        single_slot_reads: int = 0,
     ) -> None:
         self.min_label_confidence = float(min_label_confidence)
+        self.single_slot_reads = int(single_slot_reads)
         self.min_slots = max(1, int(min_slots))
         self.inlier_distance = float(inlier_distance)
         self.max_tag_range = float(max_tag_range)
@@ -328,7 +335,8 @@ class Relocalizer:
         )
         confident = np.array([s.label_confidence >= self.min_label_confidence for s in frame.slots])
         code = np.where(confident, code_any, -1)
-        return V, var, code, code_any
+        reads = np.array([s.label_reads for s in frame.slots], dtype=int)
+        return V, var, code, code_any, reads
 
     def _hypotheses(self, V: FloatArray, ps: FloatArray, pm: FloatArray):
         """Poses of the pairs (observed ps[i], map pm[i]) and, per pose, which pairs agree
@@ -352,16 +360,19 @@ class Relocalizer:
         return np.minimum(by_obs.sum(axis=1), by_map.sum(axis=1))
 
     def _slots_global(self, obs) -> _SlotFit | None:
-        V, var, code, code_any = obs
+        V, var, code, code_any, reads = obs
         idx = np.flatnonzero(code >= 0)
-        if len(idx) < self.min_slots:
+        needed = self.min_slots
+        if self.single_slot_reads > 0 and np.any(reads[idx] >= self.single_slot_reads):
+            needed = 1
+        if len(idx) < needed:
             return None
         ps = np.concatenate([np.full(len(self._slots_of_label[code[i]]), i) for i in idx])
         pm = np.concatenate([self._slots_of_label[code[i]] for i in idx])
         H, agree = self._hypotheses(V, ps, pm)
         support = self._support(agree, ps, pm)
         best = int(np.argmax(support))
-        if support[best] < self.min_slots:
+        if support[best] < needed:
             return None
         far = _distinct(H, H[best])
         if np.any(far & (support >= support[best])):
@@ -374,7 +385,7 @@ class Relocalizer:
         # that land on no map slot (two neighbours' IDs misread with the same shift fit a
         # pose one pitch off; the frame's other slots then speak against it)
         agree, contra, miss = self._explain(fit.pose, V, code_any)
-        if agree - contra - miss < self.min_slots:
+        if agree - contra - miss < needed:
             return None
         return fit
 
@@ -401,7 +412,7 @@ class Relocalizer:
     def _slots_around(self, prior: _Gaussian, obs) -> _SlotFit | None:
         """Slots matched around a tag pose: each observed slot against its nearest map
         slots, pairs gated against the prior, the best-supported pose that has no rival."""
-        V, var, code, code_any = obs
+        V, var, code, code_any, _ = obs
         k = min(NEAREST_MAP_SLOTS, len(self._centres))
         centres = _move(prior.mean[None], V.mean(axis=1)[:, None, :])[0, :, 0]
         _, nn = self._tree.query(centres, k=k)

@@ -42,6 +42,7 @@ from semslam.mapping.factors import (
     slot_observation_residual,
     slot_shape_residual,
 )
+from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import SlotLandmarks, SlotPool
 from semslam.mapping.lines import LineLandmarks
@@ -100,6 +101,7 @@ class Sighting:
     candidates: list[int] = field(default_factory=list)  # landmark index per component
     first_choice: int | None = None
     factor: object | None = None  # gtsam factor or MaxMixture
+    fused: int = 1  # detections averaged into this one (frame_fusion)
     status: SightingStatus = SightingStatus.POOLED
     landmark: int | None = None
 
@@ -147,7 +149,7 @@ class Mapper:
         self.keyframe_poses: list[FloatArray] = []  # current estimates (dead reckoning if no graph)
         self.tags: dict[int, dict] = {}
         self._start = np.asarray(start_pose, dtype=float)
-        self._pending: tuple[float, FloatArray] | None = None
+        self._between: list[tuple[FrameObservations, FloatArray]] = []  # since the keyframe
         self._timing = {"update_s": 0.0, "association_s": 0.0}
         self._slot_observation_sums: dict[int, list[FloatArray]] = {}
         self.calibration = np.array([1.0, 0.0])  # current (speed scale, gyro bias) estimate
@@ -185,12 +187,15 @@ class Mapper:
         turned = abs(math.degrees(delta[2]))
         if moved < self.cfg.keyframe_distance and turned < self.cfg.keyframe_angle_deg:
             self._read_labels_between_keyframes(frame, compose(self.keyframe_poses[-1], delta))
+            if frame.slots and self.cfg.fuse_frames_max > 1:
+                self._between.append((frame, delta))
             return False
         J = calibration_jacobian(*self.odo, t_prev, frame.t) if self._calibrating else None
         corrected = delta if J is None else delta + J @ (self.calibration - [1.0, 0.0])
         predicted = compose(self.keyframe_poses[-1], corrected)
         self._add_keyframe(frame.t, predicted, (delta, cov, J))
-        self._observe(frame)
+        self._observe(frame, slots_in_keyframe(self._between, delta))
+        self._between = []
         if self.use_graph and len(self.keyframe_times) % self.cfg.update_every == 0:
             started = time.perf_counter()
             self.graph.update()
@@ -241,13 +246,18 @@ class Mapper:
             )
         )
 
-    def _observe(self, frame: FrameObservations) -> None:
+    def _observe(self, frame: FrameObservations, between: list[SlotObservation] = ()) -> None:
+        """Add a keyframe's observations; ``between``: slot detections of the frames since
+        the last keyframe, in this keyframe's vehicle frame (fused into its own)."""
         k = len(self.keyframe_times) - 1
         started = time.perf_counter()
         for tag in frame.tags:
             self._add_tag(k, tag)
         for obs in frame.slots:
-            self._add_slot_sighting(k, frame.t, obs)
+            fused, count = fuse_detection(
+                obs, list(between), self.cfg.fuse_radius, self.cfg.fuse_frames_max
+            )
+            self._add_slot_sighting(k, frame.t, fused, count)
         self.pool.expire(k)
         if self.cfg.use_markings:
             for marking in frame.markings:
@@ -326,10 +336,10 @@ class Mapper:
         self.graph.add_factor(custom_factor([X(k), L(line.index)], residual, noise))
 
     # ------------------------------------------------------------------ slots
-    def _add_slot_sighting(self, k: int, t: float, obs: SlotObservation) -> None:
+    def _add_slot_sighting(self, k: int, t: float, obs: SlotObservation, fused: int) -> None:
         cfg = self.cfg
         corners = transform_points(self.keyframe_poses[k], obs.vCorners)
-        sighting = Sighting(t, k, obs)
+        sighting = Sighting(t, k, obs, fused=fused)
         index = len(self.sightings)
         self.sightings.append(sighting)
         candidates = self.slots.candidates(
@@ -370,8 +380,10 @@ class Mapper:
             )
         )
 
-    def _observation_sigma(self, obs: SlotObservation) -> float:
-        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min)
+    def _observation_sigma(self, sighting: Sighting) -> float:
+        """Corner sigma of a (fused) detection, floored and scaled by its confidence."""
+        obs = sighting.observation
+        sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min / math.sqrt(sighting.fused))
         return sigma / math.sqrt(max(obs.confidence, 0.05))
 
     def _attach(self, sighting: Sighting, candidates: list[tuple[int, float, bool]]) -> None:
@@ -395,7 +407,7 @@ class Mapper:
                 transform_points(self.keyframe_poses[sighting.keyframe], obs.vCorners)
             )
             return
-        sigma = self._observation_sigma(obs)
+        sigma = self._observation_sigma(sighting)
         pose_key = X(sighting.keyframe)
         corner_keys = {i: [C(4 * i + c) for c in range(4)] for i in sighting.candidates}
         if not self.robust:  # plain least squares: the most likely candidate, Gaussian

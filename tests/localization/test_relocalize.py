@@ -342,3 +342,30 @@ def test_nothing_usable_gives_none(world, reloc, exact_sensor):
     unsure = tuple(replace(s, label_confidence=0.79) for s in frame.slots)
     assert reloc.locate(replace(frame, slots=unsure)) is None
     assert Relocalizer(SemanticMap()).locate(frame) is None
+
+
+def test_one_slot_read_alike_in_many_frames_is_enough(world, exact_sensor):
+    """With single_slot_reads, one labelled slot fixes the pose when its ID was read alike
+    in that many merged frames, and not with fewer readings."""
+    reloc = Relocalizer(world.to_map(), single_slot_reads=5)
+    mTv = _aisle_pose(world, 0.5, 0.1, aisle=1)
+    a = _seen_row(world, exact_sensor, mTv)[0]
+    once = _slot_frame(mTv, [a])
+    assert reloc.locate(once) is None
+    many = replace(once, slots=(replace(once.slots[0], label_reads=5),))
+    r = reloc.locate(many)
+    assert r is not None and r.source == "slots"
+    dp, dy = _errors(r, mTv)
+    assert dp < 1e-6 and dy < 1e-6
+    assert Relocalizer(world.to_map()).locate(many) is None  # off by default here
+
+
+def test_a_well_read_misread_beside_a_disagreeing_neighbour_gives_no_pose(world, exact_sensor):
+    """Slot a misread as b in 8 frames, slot b read right once: two poses a pitch apart
+    with the same support, so no pose rather than the misread one."""
+    reloc = Relocalizer(world.to_map(), single_slot_reads=5)
+    mTv = _aisle_pose(world, 0.5, 0.0, aisle=1)
+    a, b = _seen_row(world, exact_sensor, mTv)[:2]
+    frame = _slot_frame(mTv, [a, b], [b.label, b.label], conf=0.95)
+    strong = replace(frame, slots=(replace(frame.slots[0], label_reads=8), frame.slots[1]))
+    assert reloc.locate(strong) is None

@@ -1,0 +1,33 @@
+"""Recent frames merged into one for relocalization (semslam.localization.recent)."""
+
+import numpy as np
+
+from semslam.localization.recent import RecentFrames
+from semslam.types import FrameObservations, SlotKind, SlotObservation
+
+SLOT = np.array([[3.0, 1.0], [3.0, -1.5], [8.0, -1.5], [8.0, 1.0]])
+
+
+def _frame(t, label, x_offset=0.0):
+    obs = SlotObservation(SLOT - [x_offset, 0.0], SlotKind.PERPENDICULAR, label, 0.9, 1.0, 0.05)
+    return FrameObservations(t, (obs,), (), ())
+
+
+def test_merged_slot_counts_the_readings_of_its_label():
+    recent = RecentFrames(window=2.0)
+    labels = ["A7", "A7", "A1", "A7", None, "A7"]
+    for i, label in enumerate(labels):
+        x = 0.2 * i  # the car drives 0.2 m per frame; the slot stays put in the world
+        recent.add(np.array([x, 0.0, 0.0]), _frame(0.1 * i, label, x))
+    (slot,) = recent.merged().slots
+    assert slot.label == "A7" and slot.label_reads == 4
+    np.testing.assert_allclose(slot.vCorners, SLOT - [1.0, 0.0], atol=1e-12)
+    assert slot.label_confidence < 0.9  # one dissenting reading discounts it
+
+
+def test_old_frames_leave_the_window():
+    recent = RecentFrames(window=1.0)
+    for i in range(30):
+        recent.add(np.array([0.0, 0.0, 0.0]), _frame(0.1 * i, "B2"))
+    (slot,) = recent.merged().slots
+    assert 10 <= slot.label_reads <= 11  # the frames within 1 s of the newest
