@@ -259,7 +259,7 @@ class LocalizationConfig(_Section):
     )
     relocalize_min_slots: int = Field(2, ge=1, description="slots that must agree to relocalize")
     relocalize_single_slot_reads: int = Field(
-        5, ge=0, description="one slot whose ID the recent frames read alike this often is "
+        3, ge=0, description="one slot whose ID the recent frames read alike this often is "
         "enough to relocalize (0: never)"
     )
     relocalize_window: float = Field(

@@ -302,11 +302,16 @@ def accuracy_figure(
 
 
 def tag_plan_figure(
-    semantic_map: SemanticMap, poses: FloatArray, steps: Sequence, even: Sequence
+    semantic_map: SemanticMap,
+    poses: FloatArray,
+    steps: Sequence,
+    even: Sequence,
+    random: Sequence[dict] | None = None,
 ) -> bytes:
     """Proposed tags (numbered, in order) along the route, and the worst / 95th-percentile
     sigma against the number of tags, greedy and evenly spread
-    (:class:`~semslam.analysis.tag_placement.PlacementStep` lists)."""
+    (:class:`~semslam.analysis.tag_placement.PlacementStep` lists) and, if given, random
+    (``{"count": K, "worst_m": {"median", "best", "worst"}}`` per K: median and range)."""
     plt = _plt()
 
     fig, (ax, bx) = plt.subplots(
@@ -330,6 +335,13 @@ def tag_plan_figure(
     bx.plot(ks, [s.worst_m for s in steps], "o-", label="greedy: worst")
     bx.plot(ks, [s.p95_m for s in steps], "o--", label="greedy: 95th percentile")
     bx.plot([e.count for e in even], [e.worst_m for e in even], "s-", label="evenly spread: worst")
+    if random:
+        rk = [r["count"] for r in random]
+        line = bx.plot(rk, [r["worst_m"]["median"] for r in random], "^-",
+                       label="random: worst (median, range)")
+        bx.fill_between(rk, [r["worst_m"]["best"] for r in random],
+                        [r["worst_m"]["worst"] for r in random], color=line[0].get_color(),
+                        alpha=0.15, lw=0)
     bx.axhline(0.2, color="0.5", lw=0.8, ls=":")
     bx.set_xlabel("tags added")
     bx.set_ylabel("filtered position sigma on the route, m")

@@ -6,11 +6,12 @@ Each round adds the candidate that most lowers the worst filtered position sigma
 the route (ties broken by the mean), with the route's landmark information computed once
 and each candidate's tag information once (:mod:`semslam.analysis.accuracy`). For
 comparison, the same number of tags spread evenly along the route (TiEV found 10
-evenly spread tags best, by trial). Pure numpy.
+evenly spread tags best, by trial) or drawn at random from the candidates. Pure numpy.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,11 +146,44 @@ def even_placement(
     return _step(len(chosen), _sigmas(infos, poses, times, grade))
 
 
+def random_placement(
+    base_infos: FloatArray,
+    poses: FloatArray,
+    times: FloatArray,
+    candidates: FloatArray,
+    count: int,
+    grade: OdometryGrade,
+    rng: np.random.Generator,
+    sensors: SensorModel | None = None,
+) -> PlacementStep:
+    """``count`` candidates (C, 3; x, y in m, yaw in rad, map frame) drawn at random
+    without replacement (at most all of them): the accuracy they give together."""
+    sensors = sensors or SensorModel()
+    n = min(max(count, 0), len(candidates))
+    infos = np.array(base_infos, float)
+    if n:
+        chosen = rng.choice(len(candidates), size=n, replace=False)
+        infos = infos + tag_information(poses, candidates[chosen], None, sensors)[0]
+    return _step(n, _sigmas(infos, poses, times, grade))
+
+
+def placement_spread(steps: Sequence[PlacementStep]) -> dict[str, dict[str, float]]:
+    """Median, best (lowest) and worst (highest) of ``worst_m`` and ``p95_m`` (m) over
+    several placements of the same number of tags (e.g. random draws)."""
+    out = {}
+    for key in ("worst_m", "p95_m"):
+        v = np.array([getattr(s, key) for s in steps], float)
+        out[key] = {"median": float(np.median(v)), "best": float(v.min()), "worst": float(v.max())}
+    return out
+
+
 __all__ = [
     "PlacementStep",
     "candidate_tags",
     "even_placement",
     "greedy_placement",
+    "placement_spread",
+    "random_placement",
     "resample_route",
     "route_distance",
 ]

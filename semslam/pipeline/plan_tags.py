@@ -2,7 +2,7 @@
 
 Reads the map and the route (TUM), runs :mod:`semslam.analysis.tag_placement` and writes
 ``tag_plan.json`` (the proposed tags in order, the accuracy after each, the evenly spread
-comparison) and ``tag_plan.png`` (the route coloured by the predicted sigma with the
+and random comparisons) and ``tag_plan.png`` (the route coloured by the predicted sigma with the
 proposed tags numbered, and accuracy against K) into the output folder, atomically.
 """
 
@@ -27,18 +27,27 @@ def plan_tags(
     keep_existing: bool = True,
     spacing: float = 5.0,
     offset: float = 3.0,
+    random_trials: int = 20,
 ) -> dict[str, Any]:
     """Greedy tag placement along ``route``; the JSON-ready result (files written).
 
+    For each K in 1..count, ``random_trials`` draws of K candidates at random (seed 0)
+    give the median, best and worst of the worst and 95th-percentile sigma (``random``).
+
     Raises:
         MapError / FormatError: broken map or route.
-        ConfigError: count < 1, unknown grade, non-positive spacing or offset.
+        ConfigError: count < 1, random_trials < 1, unknown grade, non-positive spacing
+            or offset.
     """
+    import numpy as np
+
     from semslam.analysis.accuracy import GRADES, MapGeometry, route_information
     from semslam.analysis.tag_placement import (
         candidate_tags,
         even_placement,
         greedy_placement,
+        placement_spread,
+        random_placement,
         resample_route,
     )
     from semslam.io import load_map
@@ -49,6 +58,8 @@ def plan_tags(
 
     if count < 1:
         raise ConfigError(f"--count: must be at least 1, got {count}")
+    if random_trials < 1:
+        raise ConfigError(f"--random-trials: must be at least 1, got {random_trials}")
     if grade not in GRADES:
         raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
     for name, value in (("--spacing", spacing), ("--offset", offset)):
@@ -65,6 +76,19 @@ def plan_tags(
     even = [
         even_placement(infos, poses, t, candidates, k, GRADES[grade]) for k in range(1, count + 1)
     ]
+    rng = np.random.default_rng(0)
+    random = [
+        {
+            "count": k,
+            **placement_spread(
+                [
+                    random_placement(infos, poses, t, candidates, k, GRADES[grade], rng)
+                    for _ in range(random_trials)
+                ]
+            ),
+        }
+        for k in range(1, count + 1)
+    ]
     result: dict[str, Any] = {
         "map": os.fspath(map_path),
         "route": os.fspath(route),
@@ -73,6 +97,7 @@ def plan_tags(
         "candidates": len(candidates),
         "greedy": [_rounded(asdict(s)) for s in steps],
         "evenly_spread": [_rounded(asdict(s)) for s in even],
+        "random": {"trials": random_trials, "seed": 0, "steps": [_rounded(r) for r in random]},
         "proposed_tags": [
             {"x": round(s.tag[0], 3), "y": round(s.tag[1], 3), "yaw": round(s.tag[2], 4)}
             for s in steps[1:]
@@ -81,7 +106,7 @@ def plan_tags(
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "tag_plan.png", tag_plan_figure(semantic_map, poses, steps, even))
+    atomic_write_bytes(out / "tag_plan.png", tag_plan_figure(semantic_map, poses, steps, even, random))
     atomic_write_text(out / "tag_plan.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
     return result
@@ -94,6 +119,8 @@ def _rounded(d: dict[str, Any]) -> dict[str, Any]:
             v = round(v, 4) if math.isfinite(v) else None
         elif isinstance(v, tuple):
             v = [round(float(x), 4) for x in v]
+        elif isinstance(v, dict):
+            v = _rounded(v)
         out[k] = v
     return out
 
