@@ -434,6 +434,11 @@ def accuracy(
     print_metrics("semslam accuracy", rows, False)
 
 
+def _m(value: float | None) -> str:
+    """A sigma from a JSON result (None where unobservable), in metres."""
+    return "unobservable" if value is None else f"{value:.3f} m"
+
+
 @app.command("plan-tags")
 def plan_tags_command(
     map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
@@ -447,25 +452,34 @@ def plan_tags_command(
     keep_existing: Annotated[
         bool, typer.Option(help="Keep the map's own tags (--no-keep-existing: plan from none).")
     ] = True,
+    random_trials: Annotated[
+        int, typer.Option(help="Random placements drawn per number of tags (seed 0).")
+    ] = 20,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Propose where to put COUNT tags (greedy on the predicted worst sigma along the
-    route) and show how accuracy changes with their number, against evenly spread tags."""
+    route) and show how accuracy changes with their number, against evenly spread and
+    randomly placed tags."""
     from semslam.pipeline.plan_tags import plan_tags
     from semslam.reporting import print_metrics
 
     try:
-        result = plan_tags(map_path, route, output, count, grade.value, keep_existing)
+        result = plan_tags(map_path, route, output, count, grade.value, keep_existing,
+                           random_trials=random_trials)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:
         print_metrics("semslam plan-tags", result, True)
         return
     rows: dict[str, object] = {}
-    for step, even in zip(result["greedy"], [None, *result["evenly_spread"]], strict=True):
+    random = [None, *result["random"]["steps"]]
+    for step, even, rand in zip(result["greedy"], [None, *result["evenly_spread"]], random,
+                                strict=True):
         where = "" if step["tag"] is None else " at ({:.1f}, {:.1f})".format(*step["tag"][:2])
-        spread = "" if even is None else f"; evenly spread {even['worst_m']:.3f} m"
-        rows[f"{step['count']} tags{where}"] = f"worst {step['worst_m']:.3f} m{spread}"
+        spread = "" if even is None else f"; evenly spread {_m(even['worst_m'])}"
+        if rand is not None:
+            spread += f"; random median {_m(rand['worst_m']['median'])}"
+        rows[f"{step['count']} tags{where}"] = f"worst {_m(step['worst_m'])}{spread}"
     rows["written"] = ", ".join(result["files"])
     print_metrics("semslam plan-tags", rows, False)
 

@@ -29,12 +29,14 @@ from semslam.geometry import FloatArray
 @dataclass(frozen=True)
 class PlacementStep:
     """Accuracy along the route with ``count`` added tags: worst, 95th percentile and mean
-    filtered position sigma (m); ``tag`` the pose (x, y, yaw) added at this step."""
+    filtered position sigma (m), and the mean over the worst 5 % of the route's poses
+    (``worst5_mean_m``, m); ``tag`` the pose (x, y, yaw) added at this step."""
 
     count: int
     worst_m: float
     p95_m: float
     mean_m: float
+    worst5_mean_m: float
     tag: tuple[float, float, float] | None = None
 
 
@@ -85,6 +87,7 @@ def _step(count: int, sigma: FloatArray, tag=None) -> PlacementStep:
         float(sigma.max()),
         float(np.percentile(sigma, 95)),
         float(sigma.mean()),
+        float(np.sort(sigma)[-max(1, int(np.ceil(0.05 * len(sigma)))) :].mean()),
         None if tag is None else tuple(float(v) for v in tag),
     )
 
@@ -168,10 +171,11 @@ def random_placement(
 
 
 def placement_spread(steps: Sequence[PlacementStep]) -> dict[str, dict[str, float]]:
-    """Median, best (lowest) and worst (highest) of ``worst_m`` and ``p95_m`` (m) over
-    several placements of the same number of tags (e.g. random draws)."""
+    """Median, best (lowest) and worst (highest) of ``worst_m``, ``p95_m`` and
+    ``worst5_mean_m`` (m) over several placements of the same number of tags (e.g. random
+    draws)."""
     out = {}
-    for key in ("worst_m", "p95_m"):
+    for key in ("worst_m", "p95_m", "worst5_mean_m"):
         v = np.array([getattr(s, key) for s in steps], float)
         out[key] = {"median": float(np.median(v)), "best": float(v.min()), "worst": float(v.max())}
     return out

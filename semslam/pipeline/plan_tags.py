@@ -2,8 +2,9 @@
 
 Reads the map and the route (TUM), runs :mod:`semslam.analysis.tag_placement` and writes
 ``tag_plan.json`` (the proposed tags in order, the accuracy after each, the evenly spread
-and random comparisons) and ``tag_plan.png`` (the route coloured by the predicted sigma with the
-proposed tags numbered, and accuracy against K) into the output folder, atomically.
+and random comparisons) and ``tag_plan.png`` (the route coloured by the predicted sigma
+with the proposed tags numbered, and accuracy against K) into the output folder,
+atomically.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ def plan_tags(
     """Greedy tag placement along ``route``; the JSON-ready result (files written).
 
     For each K in 1..count, ``random_trials`` draws of K candidates at random (seed 0)
-    give the median, best and worst of the worst and 95th-percentile sigma (``random``).
+    give the median, best and worst of the worst sigma, its 95th percentile and the mean of
+    the route's worst 5 % (``random``).
 
     Raises:
         MapError / FormatError: broken map or route.
@@ -106,7 +108,8 @@ def plan_tags(
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "tag_plan.png", tag_plan_figure(semantic_map, poses, steps, even, random))
+    picture = tag_plan_figure(semantic_map, poses, steps, even, random)
+    atomic_write_bytes(out / "tag_plan.png", picture)
     atomic_write_text(out / "tag_plan.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
     return result

@@ -4,11 +4,20 @@ import math
 
 import numpy as np
 
-from semslam.analysis.accuracy import GRADES, MapGeometry, route_information
+from semslam.analysis.accuracy import (
+    GRADES,
+    MapGeometry,
+    filter_route,
+    position_sigma,
+    route_information,
+    tag_information,
+)
 from semslam.analysis.tag_placement import (
     candidate_tags,
     even_placement,
     greedy_placement,
+    placement_spread,
+    random_placement,
     resample_route,
 )
 from semslam.types import SemanticMap, Slot, SlotKind
@@ -43,3 +52,35 @@ def test_greedy_tags_lower_the_worst_sigma_and_beat_even_spread():
     assert all(b < a for a, b in zip(worst, worst[1:], strict=False))
     assert worst[-1] < 0.6 * worst[0]
     assert even_placement(infos, poses, t, cands, 3, GRADES["automotive"]).worst_m >= worst[-1]
+
+
+def test_random_tags_are_reproducible_and_greedy_beats_their_median_on_the_worst_5_percent():
+    poses, t = _route()
+    infos, _ = route_information(MapGeometry(_map()), poses)
+    cands = candidate_tags(poses, spacing=5.0, offset=3.0)
+    grade = GRADES["automotive"]
+    rng = np.random.default_rng(0)
+    draws = [random_placement(infos, poses, t, cands, 3, grade, rng) for _ in range(20)]
+    again = random_placement(infos, poses, t, cands, 3, grade, np.random.default_rng(0))
+    assert again == draws[0] and all(d.count == 3 for d in draws)
+    assert len({d.p95_m for d in draws}) > 1  # the draws differ
+    spread = placement_spread(draws)
+    greedy = greedy_placement(infos, poses, t, cands, 3, grade)[-1]
+    assert spread["p95_m"]["best"] <= spread["p95_m"]["median"] <= spread["p95_m"]["worst"]
+    assert greedy.p95_m <= spread["p95_m"]["median"]
+    assert greedy.worst5_mean_m < spread["worst5_mean_m"]["median"]
+    assert greedy.p95_m <= greedy.worst5_mean_m <= greedy.worst_m
+    assert greedy.worst_m < spread["worst_m"]["median"]
+
+
+def test_random_placement_of_every_candidate_adds_all_their_information():
+    poses, t = _route()
+    infos, _ = route_information(MapGeometry(_map()), poses)
+    cands = candidate_tags(poses, spacing=10.0, offset=3.0)
+    step = random_placement(infos, poses, t, cands, 99, GRADES["automotive"],
+                            np.random.default_rng(1))
+    full = infos + tag_information(poses, cands)[0]
+    sigma = [position_sigma(p) for p in filter_route(full, poses, t, GRADES["automotive"])]
+    assert step.count == len(cands)
+    np.testing.assert_allclose([step.worst_m, step.p95_m], [max(sigma), np.percentile(sigma, 95)],
+                               rtol=1e-9)

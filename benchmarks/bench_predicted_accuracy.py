@@ -1,0 +1,349 @@
+"""Predicted accuracy against the filter's errors, and tag placement (issue 8, Hofmann / TiEV).
+
+    PYTHONPATH=. python benchmarks/bench_predicted_accuracy.py [--seeds 1 2 3]
+        [--counts 3 5 10] [--draws 20] [--no-placement] [--json out.json]
+
+Per seed:
+
+1. **Consistency.** Simulates drive 1 of the `garage` world (`semslam simulate --drive 1
+   --no-images`), localizes it against the world's TRUE map (`semslam localize --map
+   world.json --observations noisy`), and predicts the covariance along the true route
+   (``groundtruth.tum``, every frame) with :mod:`semslam.analysis.accuracy` (default
+   :class:`SensorModel` = the simulator's noisy sensors). Grades: ``simulator`` (the
+   simulator's white wheel-speed and gyro noise in the grade's ``sigma^2 * t`` convention,
+   see :func:`simulator_grade`) and Hofmann's ``automotive``; as a diagnostic, the same
+   information filtered with the localizer's own noise model (:func:`localizer_model`).
+   Per frame the position
+   error ``e`` (estimate minus truth, map frame, m) and ``NEES = e^T P[:2, :2]^-1 e``
+   against the prediction, and against the filter's own covariance (the CSV beside the
+   trajectory) for contrast. A consistent covariance gives mean NEES 2 and 95 % of
+   frames under the chi-square(2) 95 % bound 5.991. Frames are correlated: the bounds on
+   the mean are given for one independent sample per 1 s block (still optimistic, the
+   filter's errors last longer than that) and per frame.
+2. **Tag placement.** The same world's map without its tags, the drive's true route at
+   1 m steps, candidates every 5 m, 3 m beside it; for K in ``--counts``: greedy,
+   evenly spread and ``--draws`` random placements (seed 0): the worst, the 95th
+   percentile and the mean over the worst 5 % of the route's poses of the filtered sigma
+   (automotive grade).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _common import report, run_semslam
+from scipy.stats import chi2
+
+from semslam.analysis.accuracy import (
+    GRADES,
+    MapGeometry,
+    OdometryGrade,
+    SensorModel,
+    filter_route,
+    route_information,
+    single_frame_covariance,
+)
+from semslam.analysis.tag_placement import (
+    candidate_tags,
+    even_placement,
+    greedy_placement,
+    placement_spread,
+    random_placement,
+    resample_route,
+)
+from semslam.config import load_config
+from semslam.evaluation.trajectory_metrics import interpolate_poses
+from semslam.io import Drive, load_map, read_track_csv, read_tum
+from semslam.types import SemanticMap
+
+BOUND_95 = float(chi2.ppf(0.95, 2))  # 5.991
+
+
+def simulator_grade() -> OdometryGrade:
+    """The simulator's odometry noise as an :class:`OdometryGrade`.
+
+    The simulator adds white noise of ``sigma`` (m/s, rad/s) to every odometry sample at
+    ``f`` Hz (``semslam/simulation/driver.py``). Integrated over ``t`` seconds it gives
+    ``t * f`` independent steps of ``sigma / f`` each: variance ``sigma^2 * t / f``. The
+    grade adds ``grade_sigma^2 * t``, so ``grade_sigma = sigma / sqrt(f)`` (m/s * sqrt(s)
+    for speed, rad/s * sqrt(s) for the rate, here converted to degrees). The per-drive
+    speed scale error (1 %) and gyro bias (1e-4 rad/s + walk) are not white and have no
+    place in this convention: they are left out (what that costs is measured below).
+    The first frame sees slots, so the initial heading is the frame's own (0 deg floor).
+    """
+    sim = load_config(None).simulation
+    root_f = math.sqrt(sim.drive.odometry_rate)
+    noise = sim.odometry_noise
+    return OdometryGrade("simulator", noise.speed_sigma / root_f, 0.0,
+                         math.degrees(noise.gyro_sigma / root_f))
+
+
+def localizer_model(
+    infos: dict[str, np.ndarray], in_view: np.ndarray, poses: np.ndarray, times: np.ndarray
+) -> np.ndarray:
+    """Diagnostic: the predicted covariance (N, 3, 3; m, rad) for the filter the localizer
+    is, not for an optimal one. Like :func:`filter_route`, but with the localizer's noise
+    model (``config.localization``): wheel speed and gyro as 50 Hz measurements of
+    ``speed_sigma`` / ``yaw_rate_sigma`` (variance ``sigma^2 / f`` per second along the
+    travel / on the heading, as in :func:`simulator_grade`) plus its isotropic position
+    walk and heading walk (``position_walk^2 * t`` on x AND y, which the grade's form
+    has no room for); painted lines only where fewer than 2 slots + tags are in view
+    (``in_view``, the localizer's marking fallback); each kind's information ``infos``
+    (``slots``, ``tags``, ``lines``: N, 3, 3 per pose, x, y, yaw in the map frame) weighted
+    by its detection probability in the simulator (1 - miss rate: the expected
+    information). Poses (N, 3) at ``times`` (N,; s)."""
+    cfg = load_config(None)
+    loc, f = cfg.localization, cfg.simulation.drive.odometry_rate
+    miss = cfg.simulation.observation_noise
+    sv2, sw2 = loc.speed_sigma**2 / f, loc.yaw_rate_sigma**2 / f + loc.yaw_walk**2
+    walk2 = loc.position_walk**2
+    fallback = (in_view < loc.fallback_below)[:, None, None]
+    infos = ((1 - miss.slot_miss_rate) * infos["slots"] + (1 - miss.tag_miss_rate) * infos["tags"]
+             + (1 - miss.marking_miss_rate) * infos["lines"] * fallback)
+    out = np.zeros((len(poses), 3, 3))
+    P = single_frame_covariance(infos[0])
+    if not np.all(np.isfinite(P)):
+        P = np.diag([1.0, 1.0, math.radians(5) ** 2])
+    out[0] = P
+    F = np.eye(3)
+    for k in range(1, len(poses)):
+        dt = max(float(times[k] - times[k - 1]), 1e-6)
+        step = poses[k, :2] - poses[k - 1, :2]
+        c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
+        F[0, 2], F[1, 2] = -step[1], step[0]
+        P = F @ P @ F.T
+        P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]]) + walk2 * dt * np.eye(2)
+        P[2, 2] += sw2 * dt
+        if infos[k].any():
+            P = np.linalg.inv(np.linalg.inv(P) + infos[k])
+        out[k] = P = (P + P.T) / 2
+    return out
+
+
+def consistency(errors: np.ndarray, covs: np.ndarray, t: np.ndarray, yaw: np.ndarray) -> dict:
+    """NEES of position errors (N, 2; m, map frame) against covariances (N, 2, 2; m^2) at
+    times t (s); also both split along and across the true heading ``yaw`` (N,; rad)."""
+    finite = np.all(np.isfinite(covs.reshape(len(covs), -1)), axis=1)
+    e, P, t, yaw = errors[finite], covs[finite], t[finite], yaw[finite]
+    u = np.column_stack([np.cos(yaw), np.sin(yaw)])  # along the travel
+    v = np.column_stack([-u[:, 1], u[:, 0]])  # across, to the left
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(P), e)
+    sigma = np.sqrt(np.linalg.eigvalsh(P)[:, -1])
+    n_blocks = len(np.unique(np.floor(t - t[0])))
+
+    def bounds(n: int) -> list[float]:
+        return [round(float(chi2.ppf(q, 2 * n) / n), 3) for q in (0.025, 0.975)]
+
+    return {
+        "frames": int(len(e)),
+        "frames_unobservable": int((~finite).sum()),
+        "nees_mean": round(float(nees.mean()), 2),
+        "nees_median": round(float(np.median(nees)), 2),
+        "share_within_5.991": round(float((nees <= BOUND_95).mean()), 3),
+        "mean_bounds_95_1s_blocks": bounds(n_blocks),
+        "mean_bounds_95_frames": bounds(len(e)),
+        "blocks_1s": n_blocks,
+        "sigma_median_m": round(float(np.median(sigma)), 4),
+        "error_median_m": round(float(np.median(np.hypot(*e.T))), 4),
+        "sigma_p95_m": round(float(np.percentile(sigma, 95)), 4),
+        "error_p95_m": round(float(np.percentile(np.hypot(*e.T), 95)), 4),
+        **{f"{name}_rms_{side}_m": round(float(np.sqrt(np.mean(value))), 4)
+           for side, w in (("along", u), ("across", v))
+           for name, value in (("error", np.einsum("ni,ni->n", e, w) ** 2),
+                               ("sigma", np.einsum("ni,nij,nj->n", w, P, w)))},
+    }
+
+
+def odometry_errors(drive_dir: Path) -> dict:
+    """The drive's odometry against its truth: wheel-scale error (integrated speed over
+    the true path length, minus 1) and the mean gyro bias (integrated yaw rate minus the
+    true heading change, over the duration; deg/s)."""
+    drive = Drive.open(drive_dir)
+    odo = drive.odometry()
+    t, poses = drive.groundtruth()
+    dt = np.diff(odo.t)
+    scale = np.sum(odo.speed[:-1] * dt) / np.hypot(*np.diff(poses[:, :2], axis=0).T).sum() - 1
+    turn = np.sum(np.remainder(np.diff(poses[:, 2]) + math.pi, 2 * math.pi) - math.pi)
+    bias = (np.sum(odo.yaw_rate[:-1] * dt) - turn) / (t[-1] - t[0])
+    return {"scale_error": round(float(scale), 4),
+            "gyro_bias_deg_s": round(math.degrees(float(bias)), 4)}
+
+
+def nees_run(root: Path, seed: int) -> dict:
+    """Simulate, localize against the true map, predict along the true route; the NEES."""
+    drive = root / f"s{seed}d1"
+    run_semslam(["simulate", str(drive), "--preset", "garage", "--seed", str(seed),
+                 "--drive", "1", "--no-images"])
+    out = root / f"s{seed}.tum"
+    run_semslam(["localize", str(drive), "--map", str(drive / "world.json"), "-o", str(out),
+                 "--observations", "noisy", "--no-progress"])
+    truth_t, truth = read_tum(drive / "groundtruth.tum")
+    track = read_track_csv(out.with_suffix(".csv"))
+    has_pose = np.all(np.isfinite(track.poses), axis=1)
+    est, ok = interpolate_poses(track.t[has_pose], track.poses[has_pose], truth_t)
+    # the filter's own covariance at the truth times: its frame times are the same
+    nearest = np.clip(np.searchsorted(track.t, truth_t), 0, len(track.t) - 1)
+    own = track.covariances[nearest][:, :2, :2]
+    errors = (est[:, :2] - truth[:, :2])[ok]
+
+    started = time.perf_counter()
+    world = load_map(drive / "world.json")
+    infos, counts = route_information(MapGeometry(world), truth, SensorModel())
+    kinds = {"slots": SemanticMap(world.slots, (), ()), "tags": SemanticMap((), world.tags, ())}
+    by_kind = {k: route_information(MapGeometry(m), truth, SensorModel())[0]
+               for k, m in kinds.items()}
+    by_kind["lines"] = infos - by_kind["slots"] - by_kind["tags"]
+    in_view = counts["corners"] / 4 + counts["tags"]  # slots (4 corners each) + tags
+    observable = np.array([np.isfinite(single_frame_covariance(i)).all() for i in infos])
+    row = {"seed": seed, "frames": len(truth_t), "route_m": round(float(
+        np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()), 1),
+        "frames_single_frame_observable": int(observable.sum())}
+    predictions = {g.name: filter_route(infos, truth, truth_t, g)
+                   for g in (simulator_grade(), GRADES["automotive"])}
+    predictions["localizer_model"] = localizer_model(by_kind, in_view, truth, truth_t)
+    for name, full in predictions.items():
+        P = full[:, :2, :2]
+        row[name] = consistency(errors, P[ok], truth_t[ok], truth[ok, 2])
+        for part_name, part in (("fixed_by_frame", observable[ok]),
+                                ("bridged", ~observable[ok])):
+            if part.any():
+                sub = consistency(errors[part], P[ok][part], truth_t[ok][part],
+                                  truth[ok, 2][part])
+                row[name][part_name] = {k: sub[k] for k in (
+                    "frames", "nees_mean", "share_within_5.991", "sigma_median_m",
+                    "error_median_m", "error_rms_along_m", "error_rms_across_m",
+                    "sigma_rms_along_m", "sigma_rms_across_m")}
+    row["filter_own"] = consistency(errors, own[ok], truth_t[ok], truth[ok, 2])
+    row["odometry"] = odometry_errors(drive)
+    bridged = ~observable[ok]
+    if bridged.any():
+        yaw = truth[ok, 2][bridged]
+        along = errors[bridged, 0] * np.cos(yaw) + errors[bridged, 1] * np.sin(yaw)
+        row["bridged_seconds"] = round(float(bridged.sum() * np.median(np.diff(truth_t))), 1)
+        row["bridged_along_error_max_m"] = round(float(np.abs(along).max()), 3)
+    row["grade_simulator"] = {k: getattr(simulator_grade(), k) for k in (
+        "speed_sigma", "heading_sigma_deg", "rate_sigma_deg")}
+    row["predict_s"] = round(time.perf_counter() - started, 1)
+    return row
+
+
+def placement_run(root: Path, seed: int, counts: list[int], draws: int, grade_name: str) -> dict:
+    """Greedy vs evenly spread vs random tags on the world's map without its own tags."""
+    drive = root / f"s{seed}d1"
+    world = load_map(drive / "world.json")
+    no_tags = SemanticMap(world.slots, (), world.markings)
+    t, poses = read_tum(drive / "groundtruth.tum")
+    poses, t = resample_route(poses, t, 1.0)
+    grade = GRADES[grade_name]
+    infos, _ = route_information(MapGeometry(no_tags), poses)
+    cands = candidate_tags(poses, 5.0, 3.0)
+    started = time.perf_counter()
+    greedy = greedy_placement(infos, poses, t, cands, max(counts), grade)
+    greedy_s = time.perf_counter() - started
+    rng = np.random.default_rng(0)
+    rows = []
+    base = greedy[0]
+    for k in counts:
+        g = greedy[min(k, len(greedy) - 1)]
+        e = even_placement(infos, poses, t, cands, k, grade)
+        spread = placement_spread([random_placement(infos, poses, t, cands, k, grade, rng)
+                                   for _ in range(draws)])
+        rows.append({"count": k, "greedy": _summary(g), "even": _summary(e), "random": spread})
+    return {"seed": seed, "grade": grade_name, "route_poses": len(poses),
+            "candidates": len(cands), "draws": draws, "no_tags": _summary(base),
+            "counts": rows, "greedy_s": round(greedy_s, 1)}
+
+
+def _summary(step) -> dict[str, float]:
+    return {k: getattr(step, k) for k in ("worst_m", "p95_m", "worst5_mean_m")}
+
+
+def markdown(nees: list[dict], placement: list[dict]) -> str:
+    lines = ["| seed | covariance | mean NEES (95 % bounds, 1 s blocks) | median NEES | "
+             "NEES <= 5.991 | sigma median | error median | sigma p95 | error p95 |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for row in nees:
+        for key, label in (("simulator", "predicted, simulator grade"),
+                           ("automotive", "predicted, automotive grade"),
+                           ("localizer_model", "predicted, localizer's noise model"),
+                           ("filter_own", "filter's own")):
+            c = row[key]
+            lo, hi = c["mean_bounds_95_1s_blocks"]
+            lines.append(f"| {row['seed']} | {label} | {c['nees_mean']} ({lo}-{hi}) | "
+                         f"{c['nees_median']} | {100 * c['share_within_5.991']:.1f} % | "
+                         f"{c['sigma_median_m']:.3f} m | {c['error_median_m']:.3f} m | "
+                         f"{c['sigma_p95_m']:.3f} m | {c['error_p95_m']:.3f} m |")
+    lines += ["", "Mean NEES / sigma median / error median (m), frames one frame fixes against "
+              "frames odometry bridges; RMS along / across the travel (m), error against sigma, "
+              "fixed frames:", "",
+              "| seed | frames | simulator grade | automotive | localizer's noise model |",
+              "| --- | --- | --- | --- | --- |"]
+    names = ("simulator", "automotive", "localizer_model")
+    for row in nees:
+        for part in ("fixed_by_frame", "bridged"):
+            cells = [row[n].get(part) for n in names]
+            lines.append(f"| {row['seed']} | {part} ({cells[0]['frames'] if cells[0] else 0}) | "
+                         + " | ".join("" if c is None else f"{c['nees_mean']} / "
+                                      f"{c['sigma_median_m']:.4f} / {c['error_median_m']:.4f}"
+                                      for c in cells) + " |")
+        cells = [row[n]["fixed_by_frame"] for n in names]
+        lines.append(f"| {row['seed']} | along / across RMS | " + " | ".join(
+            f"{c['error_rms_along_m']:.4f} / {c['error_rms_across_m']:.4f} against "
+            f"{c['sigma_rms_along_m']:.4f} / {c['sigma_rms_across_m']:.4f}" for c in cells) + " |")
+        lines.append(f"| {row['seed']} | odometry | scale error {row['odometry']['scale_error']}, "
+                     f"gyro bias {row['odometry']['gyro_bias_deg_s']} deg/s | "
+                     f"bridged {row.get('bridged_seconds', 0)} s, along-track error up to "
+                     f"{row.get('bridged_along_error_max_m', 0)} m | |")
+    if placement:
+        keys = ("worst_m", "p95_m", "worst5_mean_m")
+        lines += ["", "Filtered sigma on the route, m: worst / 95th percentile / mean of the "
+                  "worst 5 %; random: median over the draws (best-worst).", "",
+                  "| seed | K | greedy | evenly spread | random worst | random p95 | "
+                  "random worst-5 % mean |", "| --- | --- | --- | --- | --- | --- | --- |"]
+
+        def triple(d: dict) -> str:
+            return " / ".join(f"{d[k]:.3f}" for k in keys)
+
+        for p in placement:
+            lines.append(f"| {p['seed']} | 0 | {triple(p['no_tags'])} | | | | |")
+            for r in p["counts"]:
+                rand = " | ".join(f"{r['random'][k]['median']:.3f} ({r['random'][k]['best']:.3f}"
+                                  f"-{r['random'][k]['worst']:.3f})" for k in keys)
+                lines.append(f"| {p['seed']} | {r['count']} | {triple(r['greedy'])} | "
+                             f"{triple(r['even'])} | {rand} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[1])
+    parser.add_argument("--counts", nargs="+", type=int, default=[3, 5, 10])
+    parser.add_argument("--draws", type=int, default=20)
+    parser.add_argument("--grade", choices=sorted(GRADES), default="automotive",
+                        help="odometry grade of the tag placement comparison")
+    parser.add_argument("--no-placement", action="store_true")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    if min(args.counts) < 1 or args.draws < 1:
+        parser.error("--counts and --draws must be at least 1")
+    nees, placement = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        for seed in args.seeds:
+            nees.append(nees_run(root, seed))
+            print(json.dumps(nees[-1]), flush=True)
+            if not args.no_placement:
+                placement.append(placement_run(root, seed, sorted(args.counts), args.draws,
+                                               args.grade))
+                print(json.dumps(placement[-1]), flush=True)
+    report(markdown(nees, placement), {"consistency": nees, "placement": placement}, args.json)
+
+
+if __name__ == "__main__":
+    main()
