@@ -115,7 +115,11 @@ class MappingConfig(_Section):
     )
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
-    update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
+    update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates (at least)")
+    update_budget: float = Field(
+        0.05, ge=0, description="share of the driving time iSAM2 updates may take; over it, "
+        "updates wait until the drive catches up (0: every update_every keyframes)"
+    )
     relinearize_threshold: float = Field(
         1.0, gt=0, description="iSAM2: relinearise beyond (the final batch relinearises all)"
     )
@@ -160,6 +164,14 @@ class MappingConfig(_Section):
     label_vote_gate: float = Field(
         0.4, gt=0, description="m: a slot read between keyframes votes for the landmark this near"
     )
+    loop_closure_radius: float = Field(
+        30.0, ge=0, description="m: a confident ID's landmark beyond the ID gate and within "
+        "this votes for a loop closure (0: off)"
+    )
+    loop_closure_support: int = Field(
+        3, ge=2, description="distinct slot IDs that must agree on one loop-closure correction"
+    )
+    loop_closure_window: int = Field(20, ge=1, description="keyframes a loop-closure vote lasts")
     null_weight: float = Field(0.05, gt=0, lt=1, description="prior weight of the null hypothesis")
     null_information_scale: float = Field(
         1e-4, gt=0, lt=1, description="null component's information relative to the measurement"

@@ -46,6 +46,7 @@ from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import SlotLandmarks, SlotPool
 from semslam.mapping.lines import LineLandmarks
+from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations
 from semslam.mapping.maxmix import (
     Component,
@@ -151,6 +152,7 @@ class Mapper:
         self._start = np.asarray(start_pose, dtype=float)
         self._between: list[tuple[FrameObservations, FloatArray]] = []  # since the keyframe
         self._timing = {"update_s": 0.0, "association_s": 0.0}
+        self._last_update = 0  # keyframe of the last iSAM2 update
         self._slot_observation_sums: dict[int, list[FloatArray]] = {}
         self.calibration = np.array([1.0, 0.0])  # current (speed scale, gyro bias) estimate
         self._label_votes: list[tuple[int, str, float]] = []  # from frames between keyframes
@@ -164,6 +166,8 @@ class Mapper:
             config.marking_gap,
             config.marking_min_support,
         )
+        self.closure = IdLoopClosure(config.loop_closure_window, config.loop_closure_support)
+        self._landmarks_of_label: dict[str, set[int]] = {}  # landmarks that got a vote
         self.marking_detections: list[tuple[int, FloatArray, float, float]] = []
         # (keyframe, end points (2, 2) vehicle frame, width, confidence): every one used
 
@@ -196,13 +200,31 @@ class Mapper:
         self._add_keyframe(frame.t, predicted, (delta, cov, J))
         self._observe(frame, slots_in_keyframe(self._between, delta))
         self._between = []
-        if self.use_graph and len(self.keyframe_times) % self.cfg.update_every == 0:
+        agreed = self.closure.consensus(len(self.keyframe_times) - 1, self.keyframe_poses[-1])
+        if agreed:
+            self._close_loop(agreed)
+        if self.use_graph and self._update_due():
             started = time.perf_counter()
             self.graph.update()
             self._refresh_estimates()
             self._merge_duplicates()
+            self._last_update = len(self.keyframe_times) - 1
             self._timing["update_s"] += time.perf_counter() - started
         return True
+
+    def _update_due(self) -> bool:
+        """Every ``update_every`` keyframes, unless the updates so far took more than
+        ``update_budget`` of the driving time: then when the drive has caught up. Where a
+        drive keeps revisiting old rows, each iSAM2 update re-eliminates the tree from
+        those old landmarks up (its cost grows with the map); the budget keeps the
+        mapping time linear in the drive's length, at the price of longer stretches
+        placed by odometry between updates (centimetres over tens of metres)."""
+        if len(self.keyframe_times) - 1 - self._last_update < self.cfg.update_every:
+            return False
+        if self.cfg.update_budget <= 0:
+            return True
+        driven = self.keyframe_times[-1] - self.keyframe_times[0]
+        return self._timing["update_s"] <= self.cfg.update_budget * driven
 
     def _add_keyframe(self, t: float, pose: FloatArray, odometry) -> None:
         k = len(self.keyframe_times)
@@ -351,6 +373,7 @@ class Mapper:
             cfg.id_confidence_high,
             cfg.max_candidates,
         )
+        self._vote_for_loop_closure(k, index, corners, obs, candidates)
         if candidates:
             self._attach(sighting, candidates)
             return
@@ -363,6 +386,64 @@ class Mapper:
             self._add_slot_variables(landmark.index, landmark.corners, landmark.kind)
             for i in pooled.sightings:
                 self._attach(self.sightings[i], [(landmark.index, 0.0, False)])
+
+    def _vote_for_loop_closure(
+        self, k: int, index: int, corners: FloatArray, obs: SlotObservation, candidates
+    ) -> None:
+        """A confident ID votes for the correction that would put this sighting on the
+        landmark with that ID: a small one when the landmark is within the ID gate (the
+        current pose is right), a loop closure's when it lies farther, up to the
+        loop-closure radius."""
+        cfg = self.cfg
+        if (
+            not self.use_graph
+            or cfg.loop_closure_radius <= 0
+            or obs.label is None
+            or obs.label_confidence < cfg.id_confidence_high
+        ):
+            return
+        by_id = [i for i, _, proposed in candidates if proposed]
+        if by_id:
+            landmark = self.slots.items[by_id[0]]
+            self.closure.vote(
+                ClosureVote(k, index, landmark.index, obs.label,
+                            correction_to(corners, landmark.corners))
+            )
+            return
+        best = None
+        for i in {self.slots.resolve(j) for j in self._landmarks_of_label.get(obs.label, ())}:
+            landmark = self.slots.items[i]
+            if landmark.best_label()[0] != obs.label:
+                continue
+            d = float(np.linalg.norm(landmark.corners - corners, axis=1).mean())
+            if cfg.id_gate < d <= cfg.loop_closure_radius and (best is None or d < best[0]):
+                best = (d, landmark)
+        if best is not None:
+            landmark = best[1]
+            self.closure.vote(
+                ClosureVote(k, index, landmark.index, obs.label,
+                            correction_to(corners, landmark.corners))
+            )
+
+    def _close_loop(self, votes: list[ClosureVote]) -> None:
+        """Agreeing ID votes: their sightings become plain factors on their landmarks, the
+        graph is solved, every estimate refreshed and the duplicates around merged."""
+        for vote in votes:
+            sighting = self.sightings[vote.sighting]
+            pose_key = X(sighting.keyframe)
+            keys = [C(4 * vote.landmark + c) for c in range(4)]
+            self.graph.add_factor(
+                custom_factor(
+                    [pose_key, *keys],
+                    slot_observation_residual(pose_key, keys, sighting.observation.vCorners),
+                    gtsam.noiseModel.Isotropic.Sigma(8, self._observation_sigma(sighting)),
+                )
+            )
+        started = time.perf_counter()
+        self.graph.update()
+        self._refresh_estimates(everything=True)
+        self._merge_duplicates()
+        self._timing["update_s"] += time.perf_counter() - started
 
     def _add_slot_variables(self, index: int, corners: FloatArray, kind: SlotKind) -> None:
         if not self.use_graph:
@@ -399,9 +480,9 @@ class Mapper:
         sighting.status = SightingStatus.ACCEPTED
         sighting.landmark = sighting.first_choice
         if obs.label is not None:  # running votes, recounted from final decisions at the end
-            self.slots.items[self.slots.resolve(sighting.first_choice)].votes[obs.label] += (
-                obs.label_confidence
-            )
+            chosen = self.slots.resolve(sighting.first_choice)
+            self.slots.items[chosen].votes[obs.label] += obs.label_confidence
+            self._landmarks_of_label.setdefault(obs.label, set()).add(chosen)
         if not self.use_graph:
             self._slot_observation_sums.setdefault(sighting.first_choice, []).append(
                 transform_points(self.keyframe_poses[sighting.keyframe], obs.vCorners)
@@ -465,7 +546,7 @@ class Mapper:
             while window > 0 and not g.has(K(window)):
                 window -= 1
             self.calibration = g.vector(K(window))
-        first = 0 if everything else max(0, len(self.keyframe_poses) - 2 * self.cfg.update_every)
+        first = 0 if everything else max(0, self._last_update - self.cfg.update_every)
         for k in range(first, len(self.keyframe_poses)):
             if g.has(X(k)):
                 self.keyframe_poses[k] = g.pose(X(k))
@@ -536,6 +617,7 @@ class Mapper:
             "pooled": sum(s.status is SightingStatus.POOLED for s in self.sightings),
             "landmarks_created": len(self.slots.items),
             "merged": sum(s.merged_into is not None for s in self.slots.items),
+            "loop_closures_by_id": self.closure.closures,
             "batch_iterations": iterations,
             "tag_size_mismatches": len(self.tag_mismatches),
             "marginal_fallbacks": self._marginal_fallbacks,
