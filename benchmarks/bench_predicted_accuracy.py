@@ -8,18 +8,20 @@ Per seed:
 1. **Consistency.** Simulates drive 1 of the `garage` world (`semslam simulate --drive 1
    --no-images`), localizes it against the world's TRUE map (`semslam localize --map
    world.json --observations noisy`), and predicts the covariance along the true route
-   (``groundtruth.tum``, every frame) with :mod:`semslam.analysis.accuracy` (default
-   :class:`SensorModel` = the simulator's noisy sensors). Grades: ``simulator`` (the
-   simulator's white wheel-speed and gyro noise in the grade's ``sigma^2 * t`` convention,
-   see :func:`simulator_grade`) and Hofmann's ``automotive``; as a diagnostic, the same
-   information filtered with the localizer's own noise model (:func:`localizer_model`).
-   Per frame the position
-   error ``e`` (estimate minus truth, map frame, m) and ``NEES = e^T P[:2, :2]^-1 e``
-   against the prediction, and against the filter's own covariance (the CSV beside the
-   trajectory) for contrast. A consistent covariance gives mean NEES 2 and 95 % of
-   frames under the chi-square(2) 95 % bound 5.991. Frames are correlated: the bounds on
-   the mean are given for one independent sample per 1 s block (still optimistic, the
-   filter's errors last longer than that) and per frame.
+   (``groundtruth.tum``, every frame) with :mod:`semslam.analysis.accuracy`: Hofmann's
+   ideal filter (default :class:`SensorModel`) with the ``simulator`` grade (the
+   simulator's white wheel-speed and gyro noise in the grade's ``sigma^2 * t``
+   convention, see :func:`simulator_grade`) and with the ``automotive`` grade; and the
+   ``localizer`` grade, what ``semslam accuracy --grade localizer`` computes: semslam's
+   localizer as configured (:func:`localizer_grade`, :func:`localizer_model`) on the
+   simulator's detectors (:func:`simulated_sensors`). Per frame the position error ``e``
+   (estimate minus truth, map frame, m) and ``NEES = e^T P[:2, :2]^-1 e`` against each
+   prediction and against the filter's own covariance (the CSV beside the trajectory);
+   the localizer grade's sigma against the filter's own frame by frame; the NEES split by
+   what is in view. A consistent covariance gives mean NEES 2 and 95 % of frames under
+   the chi-square(2) 95 % bound 5.991. Frames are correlated: the bounds on the mean are
+   given for one independent sample per 1 s block (still optimistic, the filter's errors
+   last longer than that) and per frame.
 2. **Tag placement.** The same world's map without its tags, the drive's true route at
    1 m steps, candidates every 5 m, 3 m beside it; for K in ``--counts``: greedy,
    evenly spread and ``--draws`` random placements (seed 0): the worst, the 95th
@@ -44,10 +46,12 @@ from semslam.analysis.accuracy import (
     GRADES,
     MapGeometry,
     OdometryGrade,
-    SensorModel,
     filter_route,
+    localizer_grade,
+    localizer_model,
+    predicted_along_route,
     route_information,
-    single_frame_covariance,
+    simulated_sensors,
 )
 from semslam.analysis.tag_placement import (
     candidate_tags,
@@ -61,6 +65,8 @@ from semslam.config import load_config
 from semslam.evaluation.trajectory_metrics import interpolate_poses
 from semslam.io import Drive, load_map, read_track_csv, read_tum
 from semslam.types import SemanticMap
+
+SITUATIONS = ("slots/tags >= 2", "1 slot/tag", "lines only", "nothing")
 
 BOUND_95 = float(chi2.ppf(0.95, 2))  # 5.991
 
@@ -82,48 +88,6 @@ def simulator_grade() -> OdometryGrade:
     noise = sim.odometry_noise
     return OdometryGrade("simulator", noise.speed_sigma / root_f, 0.0,
                          math.degrees(noise.gyro_sigma / root_f))
-
-
-def localizer_model(
-    infos: dict[str, np.ndarray], in_view: np.ndarray, poses: np.ndarray, times: np.ndarray
-) -> np.ndarray:
-    """Diagnostic: the predicted covariance (N, 3, 3; m, rad) for the filter the localizer
-    is, not for an optimal one. Like :func:`filter_route`, but with the localizer's noise
-    model (``config.localization``): wheel speed and gyro as 50 Hz measurements of
-    ``speed_sigma`` / ``yaw_rate_sigma`` (variance ``sigma^2 / f`` per second along the
-    travel / on the heading, as in :func:`simulator_grade`) plus its isotropic position
-    walk and heading walk (``position_walk^2 * t`` on x AND y, which the grade's form
-    has no room for); painted lines only where fewer than 2 slots + tags are in view
-    (``in_view``, the localizer's marking fallback); each kind's information ``infos``
-    (``slots``, ``tags``, ``lines``: N, 3, 3 per pose, x, y, yaw in the map frame) weighted
-    by its detection probability in the simulator (1 - miss rate: the expected
-    information). Poses (N, 3) at ``times`` (N,; s)."""
-    cfg = load_config(None)
-    loc, f = cfg.localization, cfg.simulation.drive.odometry_rate
-    miss = cfg.simulation.observation_noise
-    sv2, sw2 = loc.speed_sigma**2 / f, loc.yaw_rate_sigma**2 / f + loc.yaw_walk**2
-    walk2 = loc.position_walk**2
-    fallback = (in_view < loc.fallback_below)[:, None, None]
-    infos = ((1 - miss.slot_miss_rate) * infos["slots"] + (1 - miss.tag_miss_rate) * infos["tags"]
-             + (1 - miss.marking_miss_rate) * infos["lines"] * fallback)
-    out = np.zeros((len(poses), 3, 3))
-    P = single_frame_covariance(infos[0])
-    if not np.all(np.isfinite(P)):
-        P = np.diag([1.0, 1.0, math.radians(5) ** 2])
-    out[0] = P
-    F = np.eye(3)
-    for k in range(1, len(poses)):
-        dt = max(float(times[k] - times[k - 1]), 1e-6)
-        step = poses[k, :2] - poses[k - 1, :2]
-        c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
-        F[0, 2], F[1, 2] = -step[1], step[0]
-        P = F @ P @ F.T
-        P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]]) + walk2 * dt * np.eye(2)
-        P[2, 2] += sw2 * dt
-        if infos[k].any():
-            P = np.linalg.inv(np.linalg.inv(P) + infos[k])
-        out[k] = P = (P + P.T) / 2
-    return out
 
 
 def consistency(errors: np.ndarray, covs: np.ndarray, t: np.ndarray, yaw: np.ndarray) -> dict:
@@ -190,43 +154,59 @@ def nees_run(root: Path, seed: int) -> dict:
     # the filter's own covariance at the truth times: its frame times are the same
     nearest = np.clip(np.searchsorted(track.t, truth_t), 0, len(track.t) - 1)
     own = track.covariances[nearest][:, :2, :2]
+    ok &= np.all(np.isfinite(own.reshape(len(own), -1)), axis=1)
     errors = (est[:, :2] - truth[:, :2])[ok]
 
     started = time.perf_counter()
-    world = load_map(drive / "world.json")
-    infos, counts = route_information(MapGeometry(world), truth, SensorModel())
-    kinds = {"slots": SemanticMap(world.slots, (), ()), "tags": SemanticMap((), world.tags, ())}
-    by_kind = {k: route_information(MapGeometry(m), truth, SensorModel())[0]
-               for k, m in kinds.items()}
-    by_kind["lines"] = infos - by_kind["slots"] - by_kind["tags"]
-    in_view = counts["corners"] / 4 + counts["tags"]  # slots (4 corners each) + tags
-    observable = np.array([np.isfinite(single_frame_covariance(i)).all() for i in infos])
-    row = {"seed": seed, "frames": len(truth_t), "route_m": round(float(
-        np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()), 1),
-        "frames_single_frame_observable": int(observable.sum())}
-    predictions = {g.name: filter_route(infos, truth, truth_t, g)
+    cfg = load_config(None)
+    geometry = MapGeometry(load_map(drive / "world.json"))
+    infos, _ = route_information(geometry, truth)  # Hofmann: SensorModel(), ideal filter
+    predictions = {g.name: filter_route(infos, truth, truth_t, g)[:, :2, :2]
                    for g in (simulator_grade(), GRADES["automotive"])}
-    predictions["localizer_model"] = localizer_model(by_kind, in_view, truth, truth_t)
-    for name, full in predictions.items():
-        P = full[:, :2, :2]
+    along = predicted_along_route(
+        geometry, truth, truth_t, localizer_grade(cfg.localization,
+                                                  cfg.simulation.drive.odometry_rate),
+        simulated_sensors(cfg.simulation.observation_noise), localizer_model(cfg.localization))
+    predictions["localizer"] = along["covariance"][:, :2, :2]
+    predictions["filter_own"] = own
+    row = {"seed": seed, "frames": len(truth_t), "route_m": round(float(
+        np.hypot(*np.diff(truth[:, :2], axis=0).T).sum()), 1)}
+    for name, P in predictions.items():
         row[name] = consistency(errors, P[ok], truth_t[ok], truth[ok, 2])
-        for part_name, part in (("fixed_by_frame", observable[ok]),
-                                ("bridged", ~observable[ok])):
-            if part.any():
-                sub = consistency(errors[part], P[ok][part], truth_t[ok][part],
-                                  truth[ok, 2][part])
-                row[name][part_name] = {k: sub[k] for k in (
-                    "frames", "nees_mean", "share_within_5.991", "sigma_median_m",
-                    "error_median_m", "error_rms_along_m", "error_rms_across_m",
-                    "sigma_rms_along_m", "sigma_rms_across_m")}
-    row["filter_own"] = consistency(errors, own[ok], truth_t[ok], truth[ok, 2])
+    # the prediction against the localizer's own covariance, frame by frame
+    P, Q = predictions["localizer"][ok], own[ok]
+    ratio = np.sqrt(np.linalg.eigvalsh(P)[:, -1] / np.linalg.eigvalsh(Q)[:, -1])
+    row["localizer_vs_own"] = {
+        "sigma_ratio_median": round(float(np.median(ratio)), 3),
+        "sigma_ratio_p5": round(float(np.percentile(ratio, 5)), 3),
+        "sigma_ratio_p95": round(float(np.percentile(ratio, 95)), 3),
+        "trace_ratio_mean": round(float(np.mean(np.trace(P, axis1=1, axis2=2)
+                                                 / np.trace(Q, axis1=1, axis2=2))), 3)}
+    # by what is in view (the simulator's detectors, as the localizer prediction counts)
+    landmarks = (along["slots"] + along["tags"])[ok]
+    lines = along["lines"][ok]
+    parts = dict(zip(SITUATIONS, (landmarks >= 2, landmarks == 1,
+                                  (landmarks == 0) & (lines > 0), (landmarks == 0) & (lines == 0)),
+                     strict=True))
+    row["by_view"] = {}
+    for part_name, part in parts.items():
+        if not part.any():
+            continue
+        cell = {"frames": int(part.sum())}
+        for name in ("localizer", "filter_own", "automotive"):
+            sub = consistency(errors[part], predictions[name][ok][part], truth_t[ok][part],
+                              truth[ok, 2][part])
+            cell[name] = {k: sub[k] for k in ("nees_mean", "sigma_median_m", "error_median_m",
+                                              "error_rms_along_m", "error_rms_across_m",
+                                              "sigma_rms_along_m", "sigma_rms_across_m")}
+        row["by_view"][part_name] = cell
     row["odometry"] = odometry_errors(drive)
-    bridged = ~observable[ok]
-    if bridged.any():
-        yaw = truth[ok, 2][bridged]
-        along = errors[bridged, 0] * np.cos(yaw) + errors[bridged, 1] * np.sin(yaw)
-        row["bridged_seconds"] = round(float(bridged.sum() * np.median(np.diff(truth_t))), 1)
-        row["bridged_along_error_max_m"] = round(float(np.abs(along).max()), 3)
+    blind = parts["nothing"]
+    if blind.any():
+        yaw = truth[ok, 2][blind]
+        along_err = errors[blind, 0] * np.cos(yaw) + errors[blind, 1] * np.sin(yaw)
+        row["blind_seconds"] = round(float(blind.sum() * np.median(np.diff(truth_t))), 1)
+        row["blind_along_error_max_m"] = round(float(np.abs(along_err).max()), 3)
     row["grade_simulator"] = {k: getattr(simulator_grade(), k) for k in (
         "speed_sigma", "heading_sigma_deg", "rate_sigma_deg")}
     row["predict_s"] = round(time.perf_counter() - started, 1)
@@ -271,7 +251,7 @@ def markdown(nees: list[dict], placement: list[dict]) -> str:
     for row in nees:
         for key, label in (("simulator", "predicted, simulator grade"),
                            ("automotive", "predicted, automotive grade"),
-                           ("localizer_model", "predicted, localizer's noise model"),
+                           ("localizer", "**predicted, localizer grade**"),
                            ("filter_own", "filter's own")):
             c = row[key]
             lo, hi = c["mean_bounds_95_1s_blocks"]
@@ -279,27 +259,35 @@ def markdown(nees: list[dict], placement: list[dict]) -> str:
                          f"{c['nees_median']} | {100 * c['share_within_5.991']:.1f} % | "
                          f"{c['sigma_median_m']:.3f} m | {c['error_median_m']:.3f} m | "
                          f"{c['sigma_p95_m']:.3f} m | {c['error_p95_m']:.3f} m |")
-    lines += ["", "Mean NEES / sigma median / error median (m), frames one frame fixes against "
-              "frames odometry bridges; RMS along / across the travel (m), error against sigma, "
-              "fixed frames:", "",
-              "| seed | frames | simulator grade | automotive | localizer's noise model |",
-              "| --- | --- | --- | --- | --- |"]
-    names = ("simulator", "automotive", "localizer_model")
+    lines += ["", "The localizer grade's predicted sigma over the filter's own, frame by frame: "
+              "median (5th-95th percentile); mean trace ratio:", "",
+              "| seed | sigma ratio | trace ratio |", "| --- | --- | --- |"]
     for row in nees:
-        for part in ("fixed_by_frame", "bridged"):
-            cells = [row[n].get(part) for n in names]
-            lines.append(f"| {row['seed']} | {part} ({cells[0]['frames'] if cells[0] else 0}) | "
-                         + " | ".join("" if c is None else f"{c['nees_mean']} / "
-                                      f"{c['sigma_median_m']:.4f} / {c['error_median_m']:.4f}"
-                                      for c in cells) + " |")
-        cells = [row[n]["fixed_by_frame"] for n in names]
-        lines.append(f"| {row['seed']} | along / across RMS | " + " | ".join(
-            f"{c['error_rms_along_m']:.4f} / {c['error_rms_across_m']:.4f} against "
-            f"{c['sigma_rms_along_m']:.4f} / {c['sigma_rms_across_m']:.4f}" for c in cells) + " |")
-        lines.append(f"| {row['seed']} | odometry | scale error {row['odometry']['scale_error']}, "
-                     f"gyro bias {row['odometry']['gyro_bias_deg_s']} deg/s | "
-                     f"bridged {row.get('bridged_seconds', 0)} s, along-track error up to "
-                     f"{row.get('bridged_along_error_max_m', 0)} m | |")
+        r = row["localizer_vs_own"]
+        lines.append(f"| {row['seed']} | {r['sigma_ratio_median']} ({r['sigma_ratio_p5']}-"
+                     f"{r['sigma_ratio_p95']}) | {r['trace_ratio_mean']} |")
+    lines += ["", "By what is in view (slots + tags; painted lines): frames, mean NEES "
+              "against the localizer grade / the filter's own covariance / the automotive "
+              "grade, sigma median of the localizer grade and of the filter's own, error "
+              "median, RMS error along / across the travel against the localizer grade's "
+              "(m):", "",
+              "| seed | in view | frames | NEES: localizer / own / automotive | sigma: localizer "
+              "/ own | error median | along / across RMS: error vs localizer sigma |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
+    for row in nees:
+        for part, cell in row["by_view"].items():
+            loc, own, auto = cell["localizer"], cell["filter_own"], cell["automotive"]
+            lines.append(
+                f"| {row['seed']} | {part} | {cell['frames']} | {loc['nees_mean']} / "
+                f"{own['nees_mean']} / {auto['nees_mean']} | {loc['sigma_median_m']:.4f} / "
+                f"{own['sigma_median_m']:.4f} | {loc['error_median_m']:.4f} | "
+                f"{loc['error_rms_along_m']:.4f} / {loc['error_rms_across_m']:.4f} vs "
+                f"{loc['sigma_rms_along_m']:.4f} / {loc['sigma_rms_across_m']:.4f} |")
+        lines.append(f"| {row['seed']} | odometry | | scale error "
+                     f"{row['odometry']['scale_error']}, gyro bias "
+                     f"{row['odometry']['gyro_bias_deg_s']} deg/s | nothing in view "
+                     f"{row.get('blind_seconds', 0)} s | along-track error up to "
+                     f"{row.get('blind_along_error_max_m', 0)} m | |")
     if placement:
         keys = ("worst_m", "p95_m", "worst5_mean_m")
         lines += ["", "Filtered sigma on the route, m: worst / 95th percentile / mean of the "

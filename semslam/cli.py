@@ -394,6 +394,12 @@ def evaluate_detections(
 class Grade(StrEnum):
     automotive = "automotive"
     precise = "precise"
+    localizer = "localizer"
+
+
+class HofmannGrade(StrEnum):
+    automotive = "automotive"
+    precise = "precise"
 
 
 @app.command()
@@ -405,14 +411,16 @@ def accuracy(
         Path | None, typer.Option(metavar="TRAJ.tum", help="A route to predict along.")
     ] = None,
     grade: Annotated[
-        Grade, typer.Option(help="Odometry / IMU grade (Hofmann).")
+        Grade, typer.Option(help="Odometry / IMU grade (Hofmann's ideal filter), or localizer: "
+                            "semslam's localizer as configured, on the simulator's detectors.")
     ] = Grade.automotive,
     grid_step: Annotated[float, typer.Option(help="Grid spacing, m.")] = 1.0,
     threshold: Annotated[float, typer.Option(help="Accuracy target, m (worst stretches).")] = 0.2,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Predicted accuracy from the map alone (Hofmann): single-frame (A^T P A)^-1 on a grid
-    and, along a route, filtered with an odometry grade; the worst stretches."""
+    and, along a route, filtered with an odometry grade or as semslam's localizer would;
+    the worst stretches."""
     from semslam.pipeline.accuracy import predicted_accuracy
     from semslam.reporting import print_metrics
 
@@ -447,8 +455,8 @@ def plan_tags_command(
                                          help="Folder for tag_plan.json and tag_plan.png.")],
     count: Annotated[int, typer.Option(help="How many tags to propose.")] = 5,
     grade: Annotated[
-        Grade, typer.Option(help="Odometry / IMU grade (Hofmann).")
-    ] = Grade.automotive,
+        HofmannGrade, typer.Option(help="Odometry / IMU grade (Hofmann).")
+    ] = HofmannGrade.automotive,
     keep_existing: Annotated[
         bool, typer.Option(help="Keep the map's own tags (--no-keep-existing: plan from none).")
     ] = True,

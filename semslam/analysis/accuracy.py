@@ -6,19 +6,31 @@ pose and the weight matrix ``P`` (inverse measurement covariance, map uncertaint
 included) give the single-frame covariance ``Q_xx = (A^T P A)^-1`` (3 x 3: x, y in metres,
 yaw in radians). Along a route, a Kalman filter with an odometry / IMU ``grade`` bridges
 the stretches where a frame alone cannot fix the pose: prediction with the grade's speed
-and yaw-rate noise, update with the frame's information ``A^T P A``.
+and yaw-rate noise (and isotropic position walk), update with the frame's information
+``A^T P A``.
 
 What the sensors see (:class:`SensorModel`): slot corners inside the top view (10 m x
-10 m around the car, outside the ego box), tags in the front camera's field of view within
-the range limit and facing the car, painted lines inside the top view (their clipped end
-points, across the line only). Occlusion by parked cars is not modelled, so the figures
-are what the map allows at best. Pure numpy.
+10 m around the car, outside the ego box; or, the simulator's rule, whole slots whose
+entrance is in view), tags in the front camera's field of view within the range limit
+and facing the car, painted lines inside the top view (their clipped end points, across
+the line only), each kind detected with its detection rate (the information is the
+expected one). Occlusion by parked cars is not modelled, so the figures are what the map
+allows at best.
+
+How the filter uses it (:class:`LocalizerModel`): by default Hofmann's ideal filter,
+every landmark in every frame at its sensor noise. :func:`localizer_model` and
+:func:`localizer_grade` describe semslam's own localizer instead (its ``localization``
+configuration): its corner sigma floor, inflated map covariance, painted lines only as a
+fallback where fewer than ``fallback_below`` slots + tags are detected, its covariance
+floor at the map's uncertainty, and its process noise (odometry as 50 Hz measurements
+plus position and heading walks). Pure numpy.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,13 +38,20 @@ from semslam.geometry import FloatArray, clip_segment, rotation
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
 
+if TYPE_CHECKING:
+    from semslam.config import LocalizationConfig, ObservationNoiseConfig
+    from semslam.rig import Rig
+
 UNOBSERVABLE = math.inf
 """Reported sigma where a frame (or the filter) cannot fix the pose."""
+
+SLOT_RULES = ("corners", "entrance")
 
 
 @dataclass(frozen=True)
 class SensorModel:
-    """What the car sees and how well (defaults: the simulator's noisy sensors).
+    """What the car sees and how well (defaults: the simulator's noisy sensors' noise, every
+    landmark in view detected).
 
     Attributes:
         topview_half_m: half side of the top view, m (ps2.0: 5 m).
@@ -45,6 +64,15 @@ class SensorModel:
         tag_range_sigma_abs, tag_range_sigma_rel: range noise ``abs + rel * r``, m.
         tag_bearing_sigma_deg, tag_yaw_sigma_deg: bearing and tag-yaw noise, deg.
         camera_x: the front camera's position ahead of the vehicle centre, m.
+        slot_rule: ``corners``: every slot corner inside the top view is measured on its
+            own; ``entrance``: a slot is detected whole (all four corners measured, the
+            far ones perhaps outside the view) when both entrance corners (its first two)
+            lie ``entrance_margin_m`` inside the top view and outside the ego box: the
+            simulator's detector and ps2.0's labels.
+        entrance_margin_m: see ``slot_rule``, m.
+        slot_detection_rate, tag_detection_rate, marking_detection_rate: the chance that a
+            landmark in view is detected in a frame (1 - miss rate); each kind's
+            information is weighted by it (the expected information of a frame).
     """
 
     topview_half_m: float = 5.0
@@ -60,18 +88,62 @@ class SensorModel:
     tag_bearing_sigma_deg: float = 0.3
     tag_yaw_sigma_deg: float = 3.0
     camera_x: float = 1.2
+    slot_rule: str = "corners"
+    entrance_margin_m: float = 0.15
+    slot_detection_rate: float = 1.0
+    tag_detection_rate: float = 1.0
+    marking_detection_rate: float = 1.0
+
+
+def simulated_sensors(noise: ObservationNoiseConfig, rig: Rig | None = None) -> SensorModel:
+    """The simulator's noisy detectors (``config.simulation.observation_noise``) on ``rig``
+    (default: the simulator's): its top view and ego box, the front camera's position and
+    field of view, its noise, its miss rates as detection rates, whole slots by their
+    entrance. Not modelled: false detections, misread IDs, the tags' pixel-size limit and
+    occlusion by pillars."""
+    from semslam.rig import default_rig
+
+    rig = rig or default_rig()
+    top = rig.topview
+    kw: dict[str, float] = {}
+    camera = rig.cameras.get("front")
+    if camera is not None:
+        kw["camera_x"] = float(camera.T_vehicle_camera[0, 3])
+        kw["tag_fov_deg"] = math.degrees(2 * math.atan(camera.size[0] / 2 / camera.K[0, 0]))
+    return SensorModel(
+        topview_half_m=top.half_extent_m,
+        ego_half_length_m=top.ego_length_m / 2,
+        ego_half_width_m=top.ego_width_m / 2,
+        corner_sigma=noise.slot_corner_sigma,
+        marking_sigma=noise.marking_endpoint_sigma,
+        tag_range_limit=noise.tag_range_limit,
+        tag_max_incidence_deg=noise.tag_max_incidence_deg,
+        tag_range_sigma_abs=noise.tag_range_sigma_abs,
+        tag_range_sigma_rel=noise.tag_range_sigma_rel,
+        tag_bearing_sigma_deg=noise.tag_bearing_sigma_deg,
+        tag_yaw_sigma_deg=noise.tag_yaw_sigma_deg,
+        slot_rule="entrance",
+        slot_detection_rate=1 - noise.slot_miss_rate,
+        tag_detection_rate=1 - noise.tag_miss_rate,
+        marking_detection_rate=1 - noise.marking_miss_rate,
+        **kw,
+    )
 
 
 @dataclass(frozen=True)
 class OdometryGrade:
     """Dead-reckoning quality in Hofmann's terms: speed noise (m/s), the heading's initial
     uncertainty (deg) and yaw-rate noise (deg/s). Speed and rate noise are taken as white
-    with a 1 s correlation: the variance they add grows as sigma^2 * t (t in seconds)."""
+    with a 1 s correlation: the variance they add grows as sigma^2 * t (t in seconds),
+    the speed's along the travel, the rate's on the heading. ``position_walk`` (m per
+    sqrt(s), 0 for Hofmann's grades) adds ``position_walk^2 * t`` on x AND y: slip and
+    whatever else a filter covers with an isotropic random walk (semslam's localizer)."""
 
     name: str
     speed_sigma: float
     heading_sigma_deg: float
     rate_sigma_deg: float
+    position_walk: float = 0.0
 
 
 GRADES = {
@@ -79,6 +151,92 @@ GRADES = {
     "automotive": OdometryGrade("automotive", 0.1, 0.1, 0.005),
 }
 """Hofmann's two grades: a precise IMU and automotive sensors."""
+
+
+def localizer_grade(cfg: LocalizationConfig, odometry_rate: float) -> OdometryGrade:
+    """semslam's localizer's process noise as an :class:`OdometryGrade` (name ``localizer``).
+
+    The localizer (:mod:`semslam.localization.filter`) takes each wheel-speed and gyro
+    sample, at ``odometry_rate`` Hz, as a measurement of ``v`` (``speed_sigma``) and of
+    the yaw rate (``yaw_rate_sigma``), and adds a random walk on the position
+    (``position_walk`` on x and y) and the heading (``yaw_walk``). Between frames its
+    covariance then grows by ``speed_sigma^2 / f`` per second along the travel (the
+    displacement is the integral of the speed samples, each with independent noise, over
+    ``1 / f`` s; its acceleration noise does not enter while it follows every sample), by
+    ``yaw_rate_sigma^2 / f + yaw_walk^2`` per second on the heading and by
+    ``position_walk^2`` per second on x and y: in the grade's ``sigma^2 * t`` convention
+    ``speed_sigma / sqrt(f)``, ``sqrt(yaw_rate_sigma^2 / f + yaw_walk^2)``, and the walk.
+    Checked against the localizer's own filter coasting in the tests. The heading starts
+    from the first frame's own uncertainty (no floor). The localizer has no state for a
+    wheel-speed scale error or a gyro bias, so neither has the grade: its walks are what
+    covers them.
+    """
+    if not (math.isfinite(odometry_rate) and odometry_rate > 0):
+        raise ValueError(f"odometry rate must be a positive number of Hz, got {odometry_rate}")
+    rate = math.sqrt(cfg.yaw_rate_sigma**2 / odometry_rate + cfg.yaw_walk**2)
+    return OdometryGrade(
+        "localizer",
+        cfg.speed_sigma / math.sqrt(odometry_rate),
+        0.0,
+        math.degrees(rate),
+        cfg.position_walk,
+    )
+
+
+@dataclass(frozen=True)
+class LocalizerModel:
+    """How the filter uses what the sensors see (defaults: Hofmann's ideal filter, every
+    landmark in every frame at the sensor's noise, the map's covariance as stored).
+
+    Attributes:
+        corner_sigma_min: floor on the slot corner sigma, m.
+        map_covariance_scale: the map's corner and tag covariances are multiplied by this.
+        tag_range_limit: tags farther than this are not used, m (also the sensor's limit).
+        marking_sigma: a painted line end point across the line, m (None: the sensor's).
+        marking_min_length: shorter visible lines are not used, m.
+        fallback_below: painted lines only in frames where fewer than this many slots +
+            tags are detected (0: in every frame). With detection rates below 1 the lines'
+            information is weighted by the chance of that (binomial in the slots and tags
+            in view).
+        map_floor_scale: after each update the position covariance is raised (PSD sense)
+            to this times the mean covariance of the seen slots' corners, or, where
+            painted lines are used without any slot, to this times
+            ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
+            likely one (chance >= 0.5).
+        marking_map_sigma: assumed uncertainty of a map line (maps store none), m.
+    """
+
+    corner_sigma_min: float = 0.0
+    map_covariance_scale: float = 1.0
+    tag_range_limit: float = math.inf
+    marking_sigma: float | None = None
+    marking_min_length: float = 0.3
+    fallback_below: int = 0
+    map_floor_scale: float = 0.0
+    marking_map_sigma: float = 0.0
+
+
+IDEAL = LocalizerModel()
+"""Hofmann's ideal filter."""
+
+
+def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
+    """semslam's localizer's use of the measurements (``config.localization``; see
+    :mod:`semslam.localization.association` and ``Localizer._floor_to_map``): corner sigma
+    floor, map covariance scale, tag range limit, line end points at
+    ``hypot(marking_endpoint_sigma, marking_map_sigma)`` and only as a fallback when
+    ``markings_as_fallback``, the covariance floor at the map's uncertainty. Switched-off
+    kinds (``use_slots`` ...) are not modelled."""
+    return LocalizerModel(
+        corner_sigma_min=cfg.slot_corner_sigma_min,
+        map_covariance_scale=cfg.map_covariance_scale,
+        tag_range_limit=cfg.tag_range_limit,
+        marking_sigma=math.hypot(cfg.marking_endpoint_sigma, cfg.marking_map_sigma),
+        marking_min_length=max(0.3, cfg.marking_min_length),
+        fallback_below=cfg.fallback_below if cfg.markings_as_fallback else 0,
+        map_floor_scale=cfg.map_floor_scale,
+        marking_map_sigma=cfg.marking_map_sigma,
+    )
 
 
 def _in_topview(vP: FloatArray, s: SensorModel) -> np.ndarray:
@@ -96,6 +254,8 @@ class MapGeometry:
         self.corner_cov = np.array([c for s in slots for c in s.corner_covariances], float).reshape(
             -1, 2, 2
         )
+        self.slot_of_corner = np.repeat(np.arange(len(slots)), [len(s.corners) for s in slots])
+        self.entrances = np.array([s.corners[:2] for s in slots], float).reshape(-1, 2, 2)
         tags = semantic_map.tags
         self.tags = np.array([t.mTt for t in tags], float).reshape(-1, 3)
         self.tag_cov = np.array([t.covariance for t in tags], float).reshape(-1, 3, 3)
@@ -110,34 +270,78 @@ class MapGeometry:
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
 
 
-def frame_information(
-    geometry: MapGeometry, pose: FloatArray, sensors: SensorModel = SensorModel()
-) -> tuple[FloatArray, dict[str, int]]:
-    """``A^T P A`` (3 x 3) of one frame at ``pose`` and the count of each landmark kind used.
+@dataclass(frozen=True)
+class _Frame:
+    """One frame's information per landmark kind (3 x 3 each), what is in view, and the
+    covariance floor the filter applies after it (2 x 2)."""
 
-    Map covariances add to the measurement covariance (projected into the vehicle frame).
-    """
+    slots: FloatArray
+    tags: FloatArray
+    lines: FloatArray
+    counts: dict[str, int]
+    lines_weight: float  # expected share of frames that use the lines
+    floor: FloatArray
+
+
+def _binomial(n: int, p: float) -> FloatArray:
+    """P(k of n detected), k = 0..n, each with chance p."""
+    return np.array([math.comb(n, k) * p**k * (1 - p) ** (n - k) for k in range(n + 1)])
+
+
+def _fewer_than(k: int, counts: list[tuple[int, float]]) -> float:
+    """Chance that fewer than ``k`` of the landmarks are detected, ``counts`` = (how many
+    in view, detection rate) per kind."""
+    pmf = np.ones(1)
+    for n, p in counts:
+        pmf = np.convolve(pmf, _binomial(n, p))
+    return float(pmf[:k].sum())
+
+
+def _frame(
+    geometry: MapGeometry, pose: FloatArray, sensors: SensorModel, model: LocalizerModel
+) -> _Frame:
+    if sensors.slot_rule not in SLOT_RULES:
+        raise ValueError(f"slot_rule: choose one of {', '.join(SLOT_RULES)}, "
+                         f"got {sensors.slot_rule!r}")
     pose = np.asarray(pose, float)
     R = rotation(pose[2])
-    info = np.zeros((3, 3))
-    counts = {"corners": 0, "tags": 0, "lines": 0}
+    infos = {k: np.zeros((3, 3)) for k in ("slots", "tags", "lines")}
+    counts = {"corners": 0, "slots": 0, "tags": 0, "lines": 0}
+    slot_floor = None
     # slot corners: vP = R^T (mP - t)
     if len(geometry.corners):
-        vP = (geometry.corners - pose[:2]) @ R
-        seen = np.nonzero(_in_topview(vP, sensors))[0]
+        if sensors.slot_rule == "corners":
+            seen = np.nonzero(_in_topview((geometry.corners - pose[:2]) @ R, sensors))[0]
+        else:  # whole slots whose entrance is in view
+            ent = (geometry.entrances - pose[:2]) @ R  # (S, 2, 2)
+            inside = (np.abs(ent) <= sensors.topview_half_m - sensors.entrance_margin_m).all(
+                axis=(1, 2))
+            ego = ((np.abs(ent[..., 0]) < sensors.ego_half_length_m)
+                   & (np.abs(ent[..., 1]) < sensors.ego_half_width_m)).any(axis=1)
+            whole = np.asarray(inside & ~ego, dtype=bool)
+            seen = np.nonzero(whole[geometry.slot_of_corner])[0]
         if len(seen):
             H = point_jacobian(pose, geometry.corners[seen]).reshape(len(seen), 2, 3)
-            cov = R.T @ geometry.corner_cov[seen] @ R + np.eye(2) * sensors.corner_sigma**2
-            W = np.linalg.inv(cov)
-            info += np.einsum("kai,kab,kbj->ij", H, W, H)
-            counts["corners"] = len(seen)
+            sigma = max(sensors.corner_sigma, model.corner_sigma_min)
+            cov = (R.T @ (model.map_covariance_scale * geometry.corner_cov[seen]) @ R
+                   + np.eye(2) * sigma**2)
+            infos["slots"] = np.einsum("kai,kab,kbj->ij", H, np.linalg.inv(cov), H)
+            slots = np.unique(geometry.slot_of_corner[seen])
+            counts["corners"], counts["slots"] = len(seen), len(slots)
+            slot_floor = geometry.corner_cov[np.isin(geometry.slot_of_corner, slots)].mean(axis=0)
     # tags: vTt = mTv^-1 mTt, in the camera's field of view, facing it
     if len(geometry.tags):
-        tag_info, seen_tags = tag_information(pose[None], geometry.tags, geometry.tag_cov, sensors)
-        info += tag_info[0]
+        limit = min(sensors.tag_range_limit, model.tag_range_limit)
+        tag_sensors = sensors if limit == sensors.tag_range_limit else replace(
+            sensors, tag_range_limit=limit)
+        tag_info, seen_tags = tag_information(
+            pose[None], geometry.tags, model.map_covariance_scale * geometry.tag_cov, tag_sensors)
+        infos["tags"] = tag_info[0]
         counts["tags"] = int(seen_tags[0])
     # painted lines: the visible part's end points, across the line only
     half = sensors.topview_half_m
+    marking_sigma = model.marking_sigma if model.marking_sigma is not None else (
+        sensors.marking_sigma)
     for a, b in geometry.lines:
         va, vb = (np.array([a, b]) - pose[:2]) @ R
         clipped = clip_segment(va, vb, -half, half)
@@ -146,14 +350,51 @@ def frame_information(
         ends = np.array(clipped, float).reshape(2, 2)
         d = b - a
         length = float(np.hypot(*d))
-        if length < 1e-6 or float(np.hypot(*(ends[1] - ends[0]))) < 0.3:
+        if length < 1e-6 or float(np.hypot(*(ends[1] - ends[0]))) < model.marking_min_length:
             continue
         n = np.array([-d[1], d[0]]) / length
         for vE in ends:  # d(n . (t + R vE)) / d(x, y, yaw)
             h = np.array([n[0], n[1], _yaw_row(n, R, vE)])
-            info += np.outer(h, h) / sensors.marking_sigma**2
+            infos["lines"] += np.outer(h, h) / marking_sigma**2
         counts["lines"] += 1
-    return info, counts
+    ps, pt, pm = (sensors.slot_detection_rate, sensors.tag_detection_rate,
+                  sensors.marking_detection_rate)
+    use_lines, lines_without_slots = 1.0, 1.0
+    if model.fallback_below > 0:
+        k = model.fallback_below
+        use_lines = _fewer_than(k, [(counts["slots"], ps), (counts["tags"], pt)])
+        lines_without_slots = _fewer_than(k, [(counts["tags"], pt)])
+    floor = np.zeros((2, 2))
+    if model.map_floor_scale > 0:
+        no_slot = (1 - ps) ** counts["slots"]
+        only_lines = no_slot * lines_without_slots * (1 - (1 - pm) ** counts["lines"])
+        if slot_floor is not None and no_slot <= 0.5:
+            floor = model.map_floor_scale * slot_floor
+        elif only_lines >= 0.5:
+            floor = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
+    return _Frame(infos["slots"], infos["tags"], infos["lines"], counts, use_lines, floor)
+
+
+def _expected_information(frame: _Frame, sensors: SensorModel) -> FloatArray:
+    return (sensors.slot_detection_rate * frame.slots + sensors.tag_detection_rate * frame.tags
+            + sensors.marking_detection_rate * frame.lines_weight * frame.lines)
+
+
+def frame_information(
+    geometry: MapGeometry,
+    pose: FloatArray,
+    sensors: SensorModel = SensorModel(),
+    model: LocalizerModel = IDEAL,
+) -> tuple[FloatArray, dict[str, int]]:
+    """``A^T P A`` (3 x 3) of one frame at ``pose`` and the count of each landmark kind in
+    view (``corners``, ``slots``, ``tags``, ``lines``).
+
+    Map covariances (times the model's scale) add to the measurement covariance (projected
+    into the vehicle frame). Each kind's information is weighted by its detection rate and,
+    for lines used as a fallback, by the chance that they are used (:class:`LocalizerModel`).
+    """
+    frame = _frame(geometry, pose, sensors, model)
+    return _expected_information(frame, sensors), frame.counts
 
 
 def tag_information(
@@ -233,21 +474,44 @@ def single_frame_covariance(info: FloatArray) -> FloatArray:
     w = np.linalg.eigvalsh(info)
     if w.min() <= 1e-9 * max(w.max(), 1e-300):
         return np.full((3, 3), UNOBSERVABLE)
-    return np.linalg.inv(info)
+    return np.asarray(np.linalg.inv(info), float)
+
+
+def _route_frames(
+    geometry: MapGeometry, poses: FloatArray, sensors: SensorModel, model: LocalizerModel
+) -> tuple[FloatArray, dict[str, np.ndarray], FloatArray]:
+    poses = np.asarray(poses, float).reshape(-1, 3)
+    infos = np.zeros((len(poses), 3, 3))
+    floors = np.zeros((len(poses), 2, 2))
+    counts = {k: np.zeros(len(poses), int) for k in ("corners", "slots", "tags", "lines")}
+    for k, pose in enumerate(poses):
+        frame = _frame(geometry, pose, sensors, model)
+        infos[k], floors[k] = _expected_information(frame, sensors), frame.floor
+        for key, value in frame.counts.items():
+            counts[key][k] = value
+    return infos, counts, floors
 
 
 def route_information(
-    geometry: MapGeometry, poses: FloatArray, sensors: SensorModel = SensorModel()
+    geometry: MapGeometry,
+    poses: FloatArray,
+    sensors: SensorModel = SensorModel(),
+    model: LocalizerModel = IDEAL,
 ) -> tuple[FloatArray, dict[str, np.ndarray]]:
     """:func:`frame_information` at every pose: (N, 3, 3) and the counts per pose."""
-    poses = np.asarray(poses, float).reshape(-1, 3)
-    infos = np.zeros((len(poses), 3, 3))
-    counts = {k: np.zeros(len(poses), int) for k in ("corners", "tags", "lines")}
-    for k, pose in enumerate(poses):
-        infos[k], seen = frame_information(geometry, pose, sensors)
-        for key, value in seen.items():
-            counts[key][k] = value
+    infos, counts, _ = _route_frames(geometry, poses, sensors, model)
     return infos, counts
+
+
+def route_floors(
+    geometry: MapGeometry,
+    poses: FloatArray,
+    sensors: SensorModel = SensorModel(),
+    model: LocalizerModel = IDEAL,
+) -> FloatArray:
+    """The position covariance floor (N, 2, 2; m^2) the model's filter applies after the
+    update at each pose (zeros without one; see :class:`LocalizerModel`)."""
+    return _route_frames(geometry, poses, sensors, model)[2]
 
 
 def filter_route(
@@ -255,18 +519,22 @@ def filter_route(
     poses: FloatArray,
     times: FloatArray,
     grade: OdometryGrade = GRADES["automotive"],
+    floors: FloatArray | None = None,
 ) -> FloatArray:
     """Filtered pose covariance (N, 3, 3) along a route from the frames' information.
 
     The filter starts from the first frame's own covariance (or 1 m / 5 deg if it has
     none, the heading never better than the grade's) and predicts between poses with
-    the grade: speed noise along the travelled step, yaw-rate noise on the heading (see
-    :class:`OdometryGrade`), heading uncertainty carried into the position by the step.
+    the grade: speed noise along the travelled step, yaw-rate noise on the heading, the
+    position walk on x and y (see :class:`OdometryGrade`), heading uncertainty carried
+    into the position by the step. After each update the position block is raised (in the
+    PSD sense) to ``floors`` (N, 2, 2; m^2) where given, as the localizer does.
     """
     poses = np.asarray(poses, float).reshape(-1, 3)
     times = np.asarray(times, float).reshape(-1)
     out = np.zeros((len(poses), 3, 3))
     sv2, sw2 = grade.speed_sigma**2, math.radians(grade.rate_sigma_deg) ** 2
+    walk2 = grade.position_walk**2
     first = single_frame_covariance(infos[0])
     P = first.copy() if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
     P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
@@ -279,9 +547,15 @@ def filter_route(
         F[0, 2], F[1, 2] = -step[1], step[0]
         P = F @ P @ F.T
         P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]])
+        if walk2:
+            P[:2, :2] += walk2 * dt * np.eye(2)
         P[2, 2] += sw2 * dt
         if infos[k].any():
             P = np.linalg.inv(np.linalg.inv(P) + infos[k])
+        if floors is not None and floors[k].any():
+            gap = floors[k] - P[:2, :2]
+            w, V = np.linalg.eigh(0.5 * (gap + gap.T))
+            P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
         P = (P + P.T) / 2
         out[k] = P
     return out
@@ -293,21 +567,25 @@ def predicted_along_route(
     times: FloatArray,
     grade: OdometryGrade = GRADES["automotive"],
     sensors: SensorModel = SensorModel(),
+    model: LocalizerModel = IDEAL,
 ) -> dict[str, FloatArray]:
-    """Single-frame and filtered (:func:`filter_route`) predicted accuracy at every pose.
+    """Single-frame and filtered (:func:`filter_route`, with the model's floors) predicted
+    accuracy at every pose.
 
     Returns:
         ``single_sigma`` and ``filtered_sigma`` (m, position semi-axis), ``single_yaw_deg``
-        and ``filtered_yaw_deg`` (1-sigma), ``corners``, ``tags``, ``lines`` (counts seen).
+        and ``filtered_yaw_deg`` (1-sigma), ``corners``, ``slots``, ``tags``, ``lines``
+        (counts in view), ``covariance`` (N, 3, 3; the filtered covariance: m, rad).
     """
-    infos, counts = route_information(geometry, poses, sensors)
-    filtered = filter_route(infos, poses, times, grade)
+    infos, counts, floors = _route_frames(geometry, poses, sensors, model)
+    filtered = filter_route(infos, poses, times, grade, floors)
     singles = [single_frame_covariance(info) for info in infos]
     return {
         "single_sigma": np.array([position_sigma(q) for q in singles]),
         "filtered_sigma": np.array([position_sigma(p) for p in filtered]),
         "single_yaw_deg": np.degrees(np.sqrt(np.array([q[2, 2] for q in singles]))),
         "filtered_yaw_deg": np.degrees(np.sqrt(filtered[:, 2, 2])),
+        "covariance": filtered,
         **{k: v.astype(float) for k, v in counts.items()},
     }
 
@@ -318,6 +596,7 @@ def predicted_on_grid(
     headings_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0),
     sensors: SensorModel = SensorModel(),
     bounds: tuple[float, float, float, float] | None = None,
+    model: LocalizerModel = IDEAL,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Single-frame position sigma (m) on a grid over ``bounds`` (xmin, ymin, xmax, ymax;
     default: the map's landmarks plus 2 m): the worst over ``headings_deg`` at each cell.
@@ -330,7 +609,8 @@ def predicted_on_grid(
         for j, x in enumerate(xs):
             worst = 0.0
             for h in headings_deg:
-                info, _ = frame_information(geometry, np.array([x, y, math.radians(h)]), sensors)
+                pose = np.array([x, y, math.radians(h)])
+                info, _ = frame_information(geometry, pose, sensors, model)
                 worst = max(worst, position_sigma(single_frame_covariance(info)))
             sigma[i, j] = worst
     return xs, ys, sigma
@@ -366,16 +646,23 @@ def worst_stretches(
 
 __all__ = [
     "GRADES",
+    "IDEAL",
+    "SLOT_RULES",
     "UNOBSERVABLE",
+    "LocalizerModel",
     "MapGeometry",
     "OdometryGrade",
     "SensorModel",
     "frame_information",
     "filter_route",
+    "localizer_grade",
+    "localizer_model",
     "position_sigma",
     "predicted_along_route",
     "predicted_on_grid",
+    "route_floors",
     "route_information",
+    "simulated_sensors",
     "single_frame_covariance",
     "tag_information",
     "worst_stretches",

@@ -4,6 +4,13 @@ Reads the map (and the route, TUM), runs :mod:`semslam.analysis.accuracy`, write
 ``accuracy.json`` (the figures, the worst stretches of the route) and
 ``accuracy_map.png`` (the map with the grid's single-frame sigma as a heat map and the
 route coloured by the filtered sigma) into the output folder, atomically.
+
+Grades: Hofmann's ``automotive`` and ``precise`` (an ideal filter that uses every landmark
+in view in every frame), or ``localizer``: semslam's own localizer as configured
+(``localization`` section: its process noise, painted lines as a fallback, corner sigma
+floor, map covariance scale and floor) on the simulator's detectors
+(``simulation.observation_noise``: their miss rates, whole slots by their entrance) at
+the simulator's odometry rate.
 """
 
 from __future__ import annotations
@@ -12,14 +19,52 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from semslam.errors import ConfigError
 
+if TYPE_CHECKING:
+    from semslam.config import SemslamConfig
+
 TARGET_SIGMA_M = 0.20
 """The industry target for automated valet parking (DESIGN.md): 0.20 m."""
+
+GRADE_NAMES = ("automotive", "precise", "localizer")
+"""``semslam accuracy --grade``: Hofmann's two grades and semslam's localizer."""
+
+
+def prediction_model(grade: str, cfg: SemslamConfig | None = None) -> tuple[Any, Any, Any]:
+    """(OdometryGrade, SensorModel, LocalizerModel) of a grade name; the ``localizer`` grade
+    reads ``cfg`` (default: :func:`semslam.config.load_config` with no file).
+
+    Raises:
+        ConfigError: unknown grade.
+    """
+    from semslam.analysis.accuracy import (
+        GRADES,
+        IDEAL,
+        SensorModel,
+        localizer_grade,
+        localizer_model,
+        simulated_sensors,
+    )
+
+    if grade not in GRADE_NAMES:
+        raise ConfigError(f"--grade: choose one of {', '.join(GRADE_NAMES)}, got {grade!r}")
+    if grade != "localizer":
+        return GRADES[grade], SensorModel(), IDEAL
+    if cfg is None:
+        from semslam.config import load_config
+
+        cfg = load_config(None)
+    sim = cfg.simulation
+    return (
+        localizer_grade(cfg.localization, sim.drive.odometry_rate),
+        simulated_sensors(sim.observation_noise),
+        localizer_model(cfg.localization),
+    )
 
 
 def _finite(values: np.ndarray) -> list[float | None]:
@@ -43,15 +88,18 @@ def predicted_accuracy(
     grade: str = "automotive",
     grid_step: float = 1.0,
     threshold: float = TARGET_SIGMA_M,
+    cfg: SemslamConfig | None = None,
 ) -> dict[str, Any]:
-    """Predict the accuracy the map allows and write the JSON and the picture.
+    """Predict the accuracy the map allows and write the JSON and the picture; ``cfg``
+    (default: the configuration in force) for the ``localizer`` grade.
 
     Raises:
         MapError / FormatError: a broken map or route file.
         ConfigError: unknown grade or a non-positive grid step / threshold.
     """
+    from dataclasses import asdict
+
     from semslam.analysis.accuracy import (
-        GRADES,
         MapGeometry,
         predicted_along_route,
         predicted_on_grid,
@@ -62,8 +110,7 @@ def predicted_accuracy(
     from semslam.io.tum import read_tum
     from semslam.plots import accuracy_figure
 
-    if grade not in GRADES:
-        raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
+    odometry, sensors, model = prediction_model(grade, cfg)
     for name, value in (("--grid-step", grid_step), ("--threshold", threshold)):
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
@@ -75,10 +122,13 @@ def predicted_accuracy(
         lo = np.minimum(poses[:, :2].min(axis=0) - 2.0, bounds[:2])
         hi = np.maximum(poses[:, :2].max(axis=0) + 2.0, bounds[2:])
         bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-    xs, ys, grid = predicted_on_grid(geometry, step=grid_step, bounds=bounds)
+    xs, ys, grid = predicted_on_grid(
+        geometry, step=grid_step, sensors=sensors, bounds=bounds, model=model
+    )
     result: dict[str, Any] = {
         "map": os.fspath(map_path),
         "grade": grade,
+        "odometry": asdict(odometry),
         "threshold_m": threshold,
         "grid": {
             "step_m": grid_step,
@@ -90,7 +140,7 @@ def predicted_accuracy(
     }
     route_xy = route_sigma = None
     if route is not None:
-        along = predicted_along_route(geometry, poses, t, GRADES[grade])
+        along = predicted_along_route(geometry, poses, t, odometry, sensors, model)
         distance = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
         route_xy, route_sigma = poses[:, :2], along["filtered_sigma"]
         result["route"] = {
@@ -123,4 +173,4 @@ def predicted_accuracy(
     return result
 
 
-__all__ = ["TARGET_SIGMA_M", "predicted_accuracy"]
+__all__ = ["GRADE_NAMES", "TARGET_SIGMA_M", "predicted_accuracy", "prediction_model"]

@@ -61,7 +61,7 @@ def test_one_line_cannot_fix_a_pose_but_slots_and_a_tag_can():
     tag = Tag(TagFamily.TAG36H11, 1, 0.3, np.array([8.0, 0.0, math.pi]), 1.0, np.zeros((3, 3)))
     both = SemanticMap(slots=(_slot(1.0, 1.5),), tags=(tag,))
     info, counts = frame_information(MapGeometry(both), np.zeros(3))
-    assert counts == {"corners": 4, "tags": 1, "lines": 0}
+    assert counts == {"corners": 4, "slots": 1, "tags": 1, "lines": 0}
     sigma = position_sigma(single_frame_covariance(info))
     slot_only, _ = frame_information(MapGeometry(SemanticMap(slots=both.slots)), np.zeros(3))
     assert 0 < sigma < position_sigma(single_frame_covariance(slot_only)) < 0.1

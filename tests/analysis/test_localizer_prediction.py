@@ -1,0 +1,190 @@
+"""The predicted accuracy of semslam's own localizer: its process noise as a grade, its
+marking fallback, its covariance floor, the simulator's detectors."""
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from semslam.analysis.accuracy import (
+    GRADES,
+    IDEAL,
+    LocalizerModel,
+    MapGeometry,
+    SensorModel,
+    filter_route,
+    frame_information,
+    localizer_grade,
+    localizer_model,
+    predicted_along_route,
+    simulated_sensors,
+)
+from semslam.cli import app
+from semslam.config import LocalizationConfig, ObservationNoiseConfig
+from semslam.errors import ConfigError
+from semslam.io import save_map, write_tum
+from semslam.localization.filter import CtrvFilter, ProcessNoise
+from semslam.pipeline.accuracy import predicted_accuracy, prediction_model
+from semslam.types import Marking, SemanticMap, Slot, SlotKind
+
+RATE = 50.0  # odometry, Hz
+
+
+def _slot(x: float, y: float, sid: int, cov: float = 0.0) -> Slot:
+    corners = np.array([[x, y], [x + 2.5, y], [x + 2.5, y + 5.0], [x, y + 5.0]])
+    return Slot(sid, None, 0.0, corners, np.tile(np.eye(2) * cov, (4, 1, 1)),
+                SlotKind.PERPENDICULAR)
+
+
+def _coast_localizer(cfg: LocalizationConfig, yaw: float, speed: float, seconds: float):
+    """The localizer's own filter (its prediction and odometry updates, no frame): the
+    pose covariance after ``seconds`` of straight driving."""
+    noise = ProcessNoise(cfg.acceleration_sigma, cfg.yaw_acceleration_sigma,
+                         cfg.position_walk, cfg.yaw_walk)
+    P = np.zeros((5, 5))
+    P[3, 3], P[4, 4] = cfg.speed_sigma**2, cfg.yaw_rate_sigma**2
+    f = CtrvFilter(np.array([0.0, 0.0, yaw, speed, 0.0]), P, noise)
+    for _ in range(round(seconds * RATE)):
+        f.predict(1 / RATE)
+        f.update_odometry(speed, 0.0, cfg.speed_sigma, cfg.yaw_rate_sigma)
+    return f.pose_covariance
+
+
+@pytest.mark.parametrize("walk", [0.0, 0.02, 0.05])
+def test_localizer_grade_grows_like_the_localizers_own_filter(walk):
+    cfg = LocalizationConfig(position_walk=walk)
+    yaw, speed, seconds = 0.5, 2.0, 10.0
+    expected = _coast_localizer(cfg, yaw, speed, seconds)
+    t = np.arange(0.0, seconds + 1e-9, 0.1)  # frames at 10 Hz, nothing seen after the first
+    poses = np.column_stack([speed * t * math.cos(yaw), speed * t * math.sin(yaw),
+                             np.full_like(t, yaw)])
+    infos = np.zeros((len(t), 3, 3))
+    infos[0] = np.diag([1e12, 1e12, 1e12])  # a perfectly known start, as the coast's
+    P = filter_route(infos, poses, t, localizer_grade(cfg, RATE))[-1]
+    u = np.array([math.cos(yaw), math.sin(yaw)])
+    v = np.array([-u[1], u[0]])
+    for got, want in ((u @ P[:2, :2] @ u, u @ expected[:2, :2] @ u),
+                      (v @ P[:2, :2] @ v, v @ expected[:2, :2] @ v), (P[2, 2], expected[2, 2])):
+        assert got == pytest.approx(want, rel=0.03)
+    # Hofmann's automotive grade is not this filter: 20x the along-track variance
+    auto = filter_route(infos, poses, t, GRADES["automotive"])[-1]
+    assert u @ auto[:2, :2] @ u > 2 * u @ P[:2, :2] @ u
+
+
+def test_localizer_grade_rejects_a_bad_odometry_rate():
+    with pytest.raises(ValueError, match="odometry rate"):
+        localizer_grade(LocalizationConfig(), 0.0)
+
+
+def test_predicted_sigma_among_slots_grows_with_the_position_walk():
+    m = MapGeometry(SemanticMap(slots=tuple(_slot(3.0 * k, 2.0, k) for k in range(12))))
+    t = np.arange(0.0, 15.0, 0.1)
+    poses = np.column_stack([2.0 * t, np.zeros_like(t), np.zeros_like(t)])  # slots in view
+    sensors = simulated_sensors(ObservationNoiseConfig())
+    sigmas = []
+    for walk in (0.0, 0.02, 0.04):
+        cfg = LocalizationConfig(position_walk=walk)
+        r = predicted_along_route(m, poses, t, localizer_grade(cfg, RATE), sensors,
+                                  localizer_model(cfg))
+        assert r["slots"][50] >= 2
+        sigmas.append(float(np.median(r["filtered_sigma"][20:])))
+    assert sigmas[0] < sigmas[1] < sigmas[2] < 0.05
+    assert sigmas[2] > 1.3 * sigmas[0]
+
+
+def _slots_and_line():
+    """Three slots ahead-left of the car and a painted line on its right, all in view."""
+    line = Marking(np.array([-4.0, -2.5]), np.array([4.0, -2.5]), 0.12)
+    slots = tuple(_slot(-3.0 + 2.5 * k, 1.2, k) for k in range(3))
+    return SemanticMap(slots=slots), SemanticMap(markings=(line,)), SemanticMap(
+        slots=slots, markings=(line,))
+
+
+def test_lines_are_a_fallback_the_localizer_uses_only_with_few_slots():
+    slots, line, both = (MapGeometry(m) for m in _slots_and_line())
+    pose = np.zeros(3)
+    model = localizer_model(LocalizationConfig())  # fallback_below = 2
+    sure = SensorModel(slot_rule="entrance")  # every landmark in view detected
+    info_slots, counts = frame_information(slots, pose, sure, model)
+    info_both, counts_both = frame_information(both, pose, sure, model)
+    assert counts["slots"] == 3 and counts_both["lines"] == 1
+    np.testing.assert_allclose(info_both, info_slots)  # the line is ignored among slots
+    info_line, _ = frame_information(line, pose, sure, model)
+    assert info_line[1, 1] == pytest.approx(2 / model.marking_sigma**2)  # across: y
+    # Hofmann's ideal filter uses the line as well
+    ideal_both, _ = frame_information(both, pose, sure)
+    ideal_slots, _ = frame_information(slots, pose, sure)
+    assert ideal_both[1, 1] > ideal_slots[1, 1] + 1.0
+    # slots missed 20 % of the time: lines are used when fewer than 2 of 3 are detected
+    rates = replace(sure, slot_detection_rate=0.8, marking_detection_rate=0.9)
+    info_rates, _ = frame_information(both, pose, rates, model)
+    fewer_than_two = 0.2**3 + 3 * 0.8 * 0.2**2
+    want = 0.8 * info_slots + 0.9 * fewer_than_two * info_line
+    np.testing.assert_allclose(info_rates, want, rtol=1e-9)
+
+
+def test_whole_slots_by_their_entrance_like_the_simulator():
+    deep = SemanticMap(slots=(_slot(-1.0, 2.0, 1),))  # far corners at y = 7: outside the view
+    g = MapGeometry(deep)
+    _, by_corner = frame_information(g, np.zeros(3), SensorModel())
+    _, whole = frame_information(g, np.zeros(3), SensorModel(slot_rule="entrance"))
+    assert by_corner["corners"] == 2 and whole["corners"] == 4 and whole["slots"] == 1
+    # an entrance corner in the ego box: not detected
+    _, under = frame_information(MapGeometry(SemanticMap(slots=(_slot(-1.0, 0.5, 1),))),
+                                 np.zeros(3), SensorModel(slot_rule="entrance"))
+    assert under["slots"] == 0
+    with pytest.raises(ValueError, match="slot_rule"):
+        frame_information(g, np.zeros(3), SensorModel(slot_rule="bogus"))
+    sim = simulated_sensors(ObservationNoiseConfig(slot_miss_rate=0.25))
+    assert sim.slot_rule == "entrance" and sim.slot_detection_rate == 0.75
+    assert sim.tag_fov_deg == pytest.approx(90.0, abs=0.1)
+
+
+def test_the_covariance_floor_follows_the_map():
+    t = np.arange(0.0, 5.0, 0.1)
+    poses = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    sure = SensorModel(slot_rule="entrance")
+    model = localizer_model(LocalizationConfig())  # floor 0.6 x the map's uncertainty
+    grade = localizer_grade(LocalizationConfig(), RATE)
+    slots = MapGeometry(SemanticMap(slots=tuple(_slot(-2.0 + 2.5 * k, 1.2, k, cov=0.04**2)
+                                                for k in range(4))))
+    r = predicted_along_route(slots, poses, t, grade, sure, model)
+    floor = 0.6 * 0.04**2
+    smallest = np.linalg.eigvalsh(r["covariance"][1:, :2, :2])[:, 0]
+    assert smallest.min() == pytest.approx(floor, rel=1e-6)
+    free = predicted_along_route(slots, poses, t, grade, sure, replace(model, map_floor_scale=0))
+    assert np.linalg.eigvalsh(free["covariance"][-1, :2, :2])[0] < 0.5 * floor
+    # painted lines alone (a crossing pair): the configured marking uncertainty
+    cross = SemanticMap(markings=(Marking(np.array([-4.0, 2.0]), np.array([4.0, 2.0]), 0.1),
+                                  Marking(np.array([3.0, -4.0]), np.array([3.0, 4.0]), 0.1)))
+    r = predicted_along_route(MapGeometry(cross), poses[:10], t[:10], grade, sure, model)
+    assert np.linalg.eigvalsh(r["covariance"][-1, :2, :2])[0] >= 0.6 * 0.05**2 * (1 - 1e-9)
+    assert LocalizerModel() == IDEAL and IDEAL.map_floor_scale == 0
+
+
+def test_accuracy_command_takes_the_localizer_grade(tmp_path):
+    m = SemanticMap(slots=tuple(_slot(3.0 * k, 2.0, k) for k in range(6)))
+    save_map(tmp_path / "map.json", m)
+    t = np.arange(0.0, 8.0, 0.5)
+    write_tum(tmp_path / "route.tum", t,
+              np.column_stack([2.0 * t, np.zeros_like(t), np.zeros_like(t)]))
+    runner = CliRunner()
+    result = runner.invoke(app, ["accuracy", str(tmp_path / "map.json"), "--route",
+                                 str(tmp_path / "route.tum"), "-o", str(tmp_path / "acc"),
+                                 "--grid-step", "4", "--grade", "localizer", "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    assert doc["grade"] == "localizer" and doc["odometry"]["position_walk"] == 0.02
+    hofmann = predicted_accuracy(tmp_path / "map.json", tmp_path / "h", tmp_path / "route.tum",
+                                 grid_step=4.0)
+    assert hofmann["odometry"]["position_walk"] == 0.0
+    with pytest.raises(ConfigError, match="--grade: choose one of automotive, precise, "
+                                          "localizer, got 'bad'"):
+        prediction_model("bad")
+    result = runner.invoke(app, ["plan-tags", str(tmp_path / "map.json"), "--route",
+                                 str(tmp_path / "route.tum"), "-o", str(tmp_path / "p"),
+                                 "--grade", "localizer"])
+    assert result.exit_code == 2  # the planner's information has no marking fallback
