@@ -11,9 +11,9 @@ trusted alone (readings can be wrong with high confidence), but several agree:
   pose, onto that landmark's corners (near the identity when the pose is right);
 - votes of the last ``window`` keyframes are compared as the pose they would give the
   newest keyframe (``T * pose``); when ``support`` distinct landmarks with distinct IDs
-  agree within ``distance`` and ``yaw`` on a correction away from the identity, and no
-  other correction (the identity included) has half as much support, the agreeing votes
-  are a loop closure.
+  agree within ``distance`` and ``yaw`` on a correction away from the identity, they are
+  at least half of the landmarks voting in the window, and no other correction (the
+  identity included) has half as much support, the agreeing votes are a loop closure.
 
 Misreads vote for scattered corrections, but the typical misread is a neighbour's ID,
 one slot pitch off, so over a window a few misreads do agree with each other: they
@@ -89,8 +89,9 @@ class IdLoopClosure:
             score = min(len({v.landmark for v in members}), len({v.label for v in members}))
             clusters.append((score, members, i))
         score, chosen, seed = max(clusters, key=lambda c: c[0])
-        if score < self.support:
-            return []
+        voting = len({v.landmark for v in self.votes})
+        if score < self.support or 2 * score < voting:
+            return []  # too few, or scattered votes (a confused stretch) that agree by chance
         shift = math.hypot(*(moved[seed, :2] - np.asarray(pose, float)[:2]))
         if shift <= self.distance and abs(wrap_angle(moved[seed, 2] - pose[2])) <= self.yaw:
             return []  # the readings agree with the current pose

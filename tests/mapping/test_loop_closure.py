@@ -77,3 +77,15 @@ def test_agreement_is_judged_at_the_newest_pose():
         T = compose(compose(target, R), inverse(POSE))  # T * POSE = target, turned a little
         closure.vote(_vote(k, k, T))
     assert len(closure.consensus(3, POSE)) == 3
+
+
+def test_a_few_agreeing_among_many_scattered_votes_is_no_closure():
+    """A confused stretch: twelve landmarks vote for scattered corrections, three of them
+    happen to agree; they are not half of the voters."""
+    closure = IdLoopClosure(support=3)
+    rng = np.random.default_rng(4)
+    for landmark in range(9):
+        closure.vote(_vote(landmark, landmark, [*rng.uniform(-3, 3, 2), 0.0]))
+    for landmark in (20, 21, 22):
+        closure.vote(_vote(9, landmark, [6.0, 6.0, 0.0]))
+    assert closure.consensus(10, POSE) == []
