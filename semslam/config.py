@@ -224,7 +224,7 @@ class LocalizationConfig(_Section):
         "at every frame that sees the landmark, so it must not average out like sensor noise",
     )
     map_floor_scale: float = Field(
-        0.6, ge=0, description="the position covariance never drops below this times the "
+        1.0, ge=0, description="the position covariance never drops below this times the "
         "associated map corners' covariance (0: off)",
     )
     id_confidence_high: float = Field(
