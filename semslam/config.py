@@ -165,8 +165,8 @@ class MappingConfig(_Section):
         0.4, gt=0, description="m: a slot read between keyframes votes for the landmark this near"
     )
     loop_closure_radius: float = Field(
-        30.0, ge=0, description="m: a confident ID's landmark beyond the ID gate and within "
-        "this votes for a loop closure (0: off)"
+        0.0, ge=0, description="m: a confident ID's landmark beyond the ID gate and within "
+        "this votes for a loop closure (0: off; 30 closes metre-sized drift, see BENCHMARKS.md)"
     )
     loop_closure_support: int = Field(
         3, ge=2, description="distinct slot IDs that must agree on one loop-closure correction"
