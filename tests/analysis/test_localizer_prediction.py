@@ -147,12 +147,13 @@ def test_the_covariance_floor_follows_the_map():
     t = np.arange(0.0, 5.0, 0.1)
     poses = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
     sure = SensorModel(slot_rule="entrance")
-    model = localizer_model(LocalizationConfig())  # floor 0.6 x the map's uncertainty
+    model = localizer_model(LocalizationConfig())  # floor: a multiple of the map's uncertainty
+    scale = LocalizationConfig().map_floor_scale
     grade = localizer_grade(LocalizationConfig(), RATE)
     slots = MapGeometry(SemanticMap(slots=tuple(_slot(-2.0 + 2.5 * k, 1.2, k, cov=0.04**2)
                                                 for k in range(4))))
     r = predicted_along_route(slots, poses, t, grade, sure, model)
-    floor = 0.6 * 0.04**2
+    floor = scale * 0.04**2
     smallest = np.linalg.eigvalsh(r["covariance"][1:, :2, :2])[:, 0]
     assert smallest.min() == pytest.approx(floor, rel=1e-6)
     free = predicted_along_route(slots, poses, t, grade, sure, replace(model, map_floor_scale=0))
@@ -161,7 +162,7 @@ def test_the_covariance_floor_follows_the_map():
     cross = SemanticMap(markings=(Marking(np.array([-4.0, 2.0]), np.array([4.0, 2.0]), 0.1),
                                   Marking(np.array([3.0, -4.0]), np.array([3.0, 4.0]), 0.1)))
     r = predicted_along_route(MapGeometry(cross), poses[:10], t[:10], grade, sure, model)
-    assert np.linalg.eigvalsh(r["covariance"][-1, :2, :2])[0] >= 0.6 * 0.05**2 * (1 - 1e-9)
+    assert np.linalg.eigvalsh(r["covariance"][-1, :2, :2])[0] >= scale * 0.05**2 * (1 - 1e-9)
     assert LocalizerModel() == IDEAL and IDEAL.map_floor_scale == 0
 
 
