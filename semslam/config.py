@@ -115,11 +115,7 @@ class MappingConfig(_Section):
     )
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
-    update_every: int = Field(20, ge=1, description="keyframes between iSAM2 updates (at least)")
-    update_budget: float = Field(
-        0.0, ge=0, description="share of the driving time iSAM2 updates may take; over it, "
-        "updates wait until the drive catches up (0: every update_every keyframes)"
-    )
+    update_every: int = Field(20, ge=1, description="keyframes between iSAM2 updates")
     relinearize_threshold: float = Field(
         1.0, gt=0, description="iSAM2: relinearise beyond (the final batch relinearises all)"
     )

@@ -213,18 +213,9 @@ class Mapper:
         return True
 
     def _update_due(self) -> bool:
-        """Every ``update_every`` keyframes, unless the updates so far took more than
-        ``update_budget`` of the driving time: then when the drive has caught up. Where a
-        drive keeps revisiting old rows, each iSAM2 update re-eliminates the tree from
-        those old landmarks up (its cost grows with the map); the budget keeps the
-        mapping time linear in the drive's length, at the price of longer stretches
-        placed by odometry between updates (centimetres over tens of metres)."""
-        if len(self.keyframe_times) - 1 - self._last_update < self.cfg.update_every:
-            return False
-        if self.cfg.update_budget <= 0:
-            return True
-        driven = self.keyframe_times[-1] - self.keyframe_times[0]
-        return self._timing["update_s"] <= self.cfg.update_budget * driven
+        """Every ``update_every`` keyframes: each iSAM2 update of a drive revisiting old rows
+        re-eliminates the tree from those rows up, so fewer, larger updates cost less."""
+        return len(self.keyframe_times) - 1 - self._last_update >= self.cfg.update_every
 
     def _add_keyframe(self, t: float, pose: FloatArray, odometry) -> None:
         k = len(self.keyframe_times)
@@ -443,6 +434,7 @@ class Mapper:
         self.graph.update()
         self._refresh_estimates(everything=True)
         self._merge_duplicates()
+        self._last_update = len(self.keyframe_times) - 1
         self._timing["update_s"] += time.perf_counter() - started
 
     def _add_slot_variables(self, index: int, corners: FloatArray, kind: SlotKind) -> None:
