@@ -44,7 +44,7 @@ from semslam.mapping.factors import (
 )
 from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
-from semslam.mapping.landmarks import SlotLandmarks, SlotPool
+from semslam.mapping.landmarks import SlotLandmark, SlotLandmarks, SlotPool, mean_corner_distance
 from semslam.mapping.lines import LineLandmarks
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations
@@ -394,27 +394,24 @@ class Mapper:
         ):
             return
         by_id = [i for i, _, proposed in candidates if proposed]
-        if by_id:
-            landmark = self.slots.items[by_id[0]]
+        landmark = self.slots.items[by_id[0]] if by_id else self._far_landmark(obs.label, corners)
+        if landmark is not None:
             self.closure.vote(
                 ClosureVote(k, index, landmark.index, obs.label,
                             correction_to(corners, landmark.corners))
             )
-            return
-        best = None
-        for i in {self.slots.resolve(j) for j in self._landmarks_of_label.get(obs.label, ())}:
-            landmark = self.slots.items[i]
-            if landmark.best_label()[0] != obs.label:
-                continue
-            d = float(np.linalg.norm(landmark.corners - corners, axis=1).mean())
-            if cfg.id_gate < d <= cfg.loop_closure_radius and (best is None or d < best[0]):
-                best = (d, landmark)
-        if best is not None:
-            landmark = best[1]
-            self.closure.vote(
-                ClosureVote(k, index, landmark.index, obs.label,
-                            correction_to(corners, landmark.corners))
-            )
+
+    def _far_landmark(self, label: str, corners: FloatArray) -> SlotLandmark | None:
+        """The nearest landmark holding ``label`` beyond the ID gate and within the
+        loop-closure radius of map-frame ``corners`` (4, 2), or None."""
+        held = [self.slots.items[i] for i in
+                {self.slots.resolve(j) for j in self._landmarks_of_label.get(label, ())}]
+        held = [s for s in held if s.best_label()[0] == label]
+        if not held:
+            return None
+        d = mean_corner_distance(corners, np.array([s.corners for s in held]))
+        i = int(np.argmin(d))
+        return held[i] if self.cfg.id_gate < d[i] <= self.cfg.loop_closure_radius else None
 
     def _close_loop(self, votes: list[ClosureVote]) -> None:
         """Agreeing ID votes: their sightings become plain factors on their landmarks, the
