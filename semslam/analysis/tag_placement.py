@@ -143,10 +143,7 @@ def even_placement(
     rows = len(candidates) // 2
     at = np.linspace(0, rows - 1, count + 2)[1:-1] if count < rows else np.arange(rows)
     chosen = [2 * int(round(a)) + (i % 2) for i, a in enumerate(at)]
-    infos = np.array(base_infos, float)
-    for c in chosen:
-        infos = infos + tag_information(poses, candidates[c][None], None, sensors)[0]
-    return _step(len(chosen), _sigmas(infos, poses, times, grade))
+    return _placed(base_infos, poses, times, candidates[chosen], grade, sensors)
 
 
 def random_placement(
@@ -161,13 +158,17 @@ def random_placement(
 ) -> PlacementStep:
     """``count`` candidates (C, 3; x, y in m, yaw in rad, map frame) drawn at random
     without replacement (at most all of them): the accuracy they give together."""
-    sensors = sensors or SensorModel()
     n = min(max(count, 0), len(candidates))
+    chosen = rng.choice(len(candidates), size=n, replace=False) if n else []
+    return _placed(base_infos, poses, times, candidates[chosen], grade, sensors)
+
+
+def _placed(base_infos, poses, times, tags: FloatArray, grade, sensors) -> PlacementStep:
+    """The route's accuracy with ``tags`` (T, 3) added to the map's information."""
     infos = np.array(base_infos, float)
-    if n:
-        chosen = rng.choice(len(candidates), size=n, replace=False)
-        infos = infos + tag_information(poses, candidates[chosen], None, sensors)[0]
-    return _step(n, _sigmas(infos, poses, times, grade))
+    if len(tags):
+        infos = infos + tag_information(poses, tags, None, sensors or SensorModel())[0]
+    return _step(len(tags), _sigmas(infos, poses, times, grade))
 
 
 def placement_spread(steps: Sequence[PlacementStep]) -> dict[str, dict[str, float]]:
