@@ -115,7 +115,7 @@ class MappingConfig(_Section):
     )
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
-    update_every: int = Field(20, ge=1, description="keyframes between iSAM2 updates")
+    update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
     relinearize_threshold: float = Field(
         1.0, gt=0, description="iSAM2: relinearise beyond (the final batch relinearises all)"
     )
