@@ -11,11 +11,14 @@ Follows TiEV (DESIGN.md) with the association made exact:
   when its ID is confident, the slot holding that ID; one candidate becomes a
   native-style factor whose loss is a max-mixture with the null hypothesis,
   several become one multi-hypothesis max-mixture factor (plus null);
+- the slot detections of the frames between keyframes are fused into the keyframe's
+  (:mod:`.frame_fusion`);
 - with no candidate the sighting waits in a pool and becomes a new landmark after
   M consistent sightings; duplicates (same place, compatible ID) are merged by
-  tight equality factors;
-- iSAM2 after every keyframe (the map is usable at any time), a final batch
-  Levenberg-Marquardt, marginal covariances for every landmark;
+  tight equality factors; optionally, loop closures by agreeing IDs when the drift
+  exceeds the gates (:mod:`.loop_closure`, off by default);
+- iSAM2 every ``update_every`` keyframes (the map is usable at any time), a final
+  batch Levenberg-Marquardt, marginal covariances for every landmark;
 - labels: each slot keeps the label its *accepted* observations voted for most
   (summed confidence), and the share of the votes as its confidence.
 
