@@ -137,10 +137,7 @@ def even_placement(
 ) -> PlacementStep:
     """``count`` tags spread evenly over the candidates (in route order, sides
     alternating): the accuracy they give together."""
-    sensors = sensors or SensorModel()
-    if count <= 0 or not len(candidates):
-        return _step(0, _sigmas(np.asarray(base_infos, float), poses, times, grade))
-    rows = len(candidates) // 2
+    rows, count = len(candidates) // 2, max(count, 0)
     at = np.linspace(0, rows - 1, count + 2)[1:-1] if count < rows else np.arange(rows)
     chosen = [2 * int(round(a)) + (i % 2) for i, a in enumerate(at)]
     return _placed(base_infos, poses, times, candidates[chosen], grade, sensors)

@@ -17,6 +17,7 @@ All positions in the keyframe's vehicle frame (x forward, y left), metres.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -44,7 +45,7 @@ def slots_in_keyframe(
 
 def fuse_detection(
     primary: SlotObservation,
-    others: list[SlotObservation],
+    others: Sequence[SlotObservation],
     radius: float,
     max_count: int,
 ) -> tuple[SlotObservation, int]:

@@ -77,7 +77,8 @@ class IdLoopClosure:
         where keyframe ``keyframe`` at ``pose`` (map frame) really is, else []. Old votes
         (beyond ``window`` keyframes) are forgotten; a closure clears the votes."""
         self.votes = [v for v in self.votes if keyframe - v.keyframe <= self.window]
-        if len({v.landmark for v in self.votes}) < self.support:
+        voting = len({v.landmark for v in self.votes})
+        if voting < self.support:
             return []
         moved = np.array([compose(v.correction, pose) for v in self.votes])
         clusters = []  # (distinct landmarks with distinct IDs, members, seed)
@@ -89,7 +90,6 @@ class IdLoopClosure:
             score = min(len({v.landmark for v in members}), len({v.label for v in members}))
             clusters.append((score, members, i))
         score, chosen, seed = max(clusters, key=lambda c: c[0])
-        voting = len({v.landmark for v in self.votes})
         if score < self.support or 2 * score < voting:
             return []  # too few, or scattered votes (a confused stretch) that agree by chance
         shift = math.hypot(*(moved[seed, :2] - np.asarray(pose, float)[:2]))

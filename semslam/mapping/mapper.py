@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -262,7 +263,9 @@ class Mapper:
             )
         )
 
-    def _observe(self, frame: FrameObservations, between: list[SlotObservation] = ()) -> None:
+    def _observe(
+        self, frame: FrameObservations, between: Sequence[SlotObservation] = ()
+    ) -> None:
         """Add a keyframe's observations; ``between``: slot detections of the frames since
         the last keyframe, in this keyframe's vehicle frame (fused into its own)."""
         k = len(self.keyframe_times) - 1
@@ -271,7 +274,7 @@ class Mapper:
             self._add_tag(k, tag)
         for obs in frame.slots:
             fused, count = fuse_detection(
-                obs, list(between), self.cfg.fuse_radius, self.cfg.fuse_frames_max
+                obs, between, self.cfg.fuse_radius, self.cfg.fuse_frames_max
             )
             self._add_slot_sighting(k, frame.t, fused, count)
         self.pool.expire(k)
