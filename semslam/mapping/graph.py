@@ -4,9 +4,29 @@ Everything outside ``semslam.mapping`` speaks numpy poses ``(x, y, yaw)`` and
 points ``(x, y)``; this wrapper is where they become gtsam values. Reading one
 variable asks iSAM2 for that variable only, so the work per keyframe does not
 grow with the size of the map.
+
+Why iSAM2 holds linearised factors. The mapper's factors are Python
+``CustomFactor`` s. When gtsam calls one with a ``Values`` that has no Python
+object (iSAM2's own linearisation point, or LM's), pybind11 copies the whole
+``Values`` for the call: linearising one factor then costs time in proportion to
+the size of the map, and an incremental run grows quadratically (3.2 km
+`large` drive: 999 s of iSAM2, almost all of it in that copy; BENCHMARKS.md).
+So iSAM2 never sees a Python factor: each is linearised here at iSAM2's own
+linearisation point (``_theta``, a copy owned by Python, which pybind11 passes
+by reference) and handed over as a ``LinearContainerFactor`` (native C++).
+iSAM2 relinearises by its own rule (``relinearize_threshold``, every
+``relinearize_skip`` updates); this wrapper predicts which variables that rule
+moves (their step since the linearisation point), moves ``_theta`` the same way
+and swaps in every factor on them, linearised again at the new point, in the
+same update, so the max-mixtures choose their component again as before and
+the container factors never need their first-order shift.
 """
 
 from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
 
 import gtsam
 import numpy as np
@@ -22,7 +42,7 @@ class Graph:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
         params.relinearizeSkip = relinearize_skip
-        params.enablePartialRelinearizationCheck = True
+        params.enablePartialRelinearizationCheck = False  # the full check is the one predicted
         # QR: Cholesky fails on the ill-conditioned steps that null-hypothesis losses give
         params.setFactorization("QR")
         self.isam = gtsam.ISAM2(params)
@@ -30,30 +50,41 @@ class Graph:
         self._batch: gtsam.Values | None = None  # set by optimize_batch
         self._keys: set[int] = set()
         self._dims: dict[int, int] = {}  # tangent dimension of every variable
+        self._kinds: dict[int, str] = {}  # "pose", "point" or "vector"
         self._unit = {d: gtsam.noiseModel.Unit.Create(d) for d in (1, 2, 3)}
-        self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
+        self._theta = gtsam.Values()  # linearisation point of every variable in iSAM2
+        self._in_isam = 0  # factors [0, _in_isam) are in iSAM2
+        self._slot: list[int] = []  # iSAM2 factor index of each factor
+        self._factors_of: dict[int, list[int]] = defaultdict(list)
+        self._threshold = relinearize_threshold
+        self.relinearize_skip = relinearize_skip
+        self._updates = 0
+        self.work = {"linearized": 0, "linearize_s": 0.0, "isam2_s": 0.0}  # for profiles
 
     # -- building
-    def _insert(self, key: int, value, dim: int) -> None:
+    def _insert(self, key: int, value, dim: int, kind: str) -> None:
         self._new_values.insert(key, value)
         self._keys.add(key)
         self._dims[key] = dim
+        self._kinds[key] = kind
         self._batch = None
 
     def add_pose(self, key: int, pose: FloatArray) -> None:
-        self._insert(key, gtsam.Pose2(*map(float, pose)), 3)
+        self._insert(key, gtsam.Pose2(*map(float, pose)), 3, "pose")
 
     def add_point(self, key: int, point: FloatArray) -> None:
-        self._insert(key, np.asarray(point, dtype=float), 2)
+        self._insert(key, np.asarray(point, dtype=float), 2, "point")
 
     def add_vector(self, key: int, vector: FloatArray) -> None:
         vector = np.asarray(vector, dtype=float)
-        self._insert(key, vector, len(vector))
+        self._insert(key, vector, len(vector), "vector")
 
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
-        self._new_factors.add(factor)
+        index = self.factors.size()
         self.factors.add(factor)
+        for key in factor.keys():
+            self._factors_of[key].append(index)
         self._batch = None
 
     def has(self, key: int) -> bool:
@@ -62,19 +93,58 @@ class Graph:
     # -- solving
     def update(self) -> None:
         """One iSAM2 step with everything added since the last one."""
+        self._updates += 1
+        moved = self._relinearized_by_isam2() if self._updates % self.relinearize_skip == 0 else []
+        again = sorted({i for key in moved for i in self._factors_of[key] if i < self._in_isam})
+        new = list(range(self._in_isam, self.factors.size()))
+        self._theta.insert(self._new_values)
+        linear = gtsam.NonlinearFactorGraph()
+        started = time.perf_counter()
         try:
-            self.isam.update(self._new_factors, self._new_values)
+            for i in again + new:
+                linear.add(self._linearized(i))
+            linearized = time.perf_counter()
+            result = self.isam.update(linear, self._new_values, [self._slot[i] for i in again])
         except RuntimeError as e:  # gtsam's indeterminate system: say so in one line
             raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
-        self._new_factors = gtsam.NonlinearFactorGraph()
+        self.work["linearized"] += len(again) + len(new)
+        self.work["linearize_s"] += linearized - started
+        self.work["isam2_s"] += time.perf_counter() - linearized
+        slots = list(result.getNewFactorsIndices())
+        for i, slot in zip(again, slots):
+            self._slot[i] = slot
+        self._slot.extend(slots[len(again):])
+        self._in_isam = self.factors.size()
         self._new_values = gtsam.Values()
+
+    def _linearized(self, index: int) -> gtsam.LinearContainerFactor:
+        """Factor ``index`` linearised at ``_theta``, as a native factor for iSAM2."""
+        return gtsam.LinearContainerFactor(self.factors.at(index).linearize(self._theta), self._theta)
+
+    def _relinearized_by_isam2(self) -> list[int]:
+        """The variables iSAM2 will relinearise in this update, by its own rule (largest
+        component of the step since the linearisation point at least the threshold); moves
+        ``_theta`` to where iSAM2 will move its own point: ``theta + delta``."""
+        if self._theta.size() == 0:
+            return []
+        keys = sorted(self._theta.keys())
+        delta = self.isam.getDelta()
+        step = np.abs(delta.vector(keys))
+        starts = np.cumsum([0] + [self._dims[key] for key in keys[:-1]])
+        moved = [keys[n] for n in np.flatnonzero(np.maximum.reduceat(step, starts) >= self._threshold)]
+        if moved:
+            steps = gtsam.VectorValues()
+            for key in moved:
+                steps.insert(key, delta.at(key))
+            self._theta = self._theta.retract(steps)
+        return moved
 
     @property
     def estimate(self) -> gtsam.Values:
         """All variables: the batch solution if one is current, else iSAM2's."""
         if self._batch is not None:
             return self._batch
-        if self._new_factors.size() or self._new_values.size():
+        if self._in_isam < self.factors.size() or self._new_values.size():
             self.update()
         return self.isam.calculateEstimate()
 

@@ -69,6 +69,19 @@ class LineLandmark:
         self.s_min, self.s_max = min(self.s_min, float(s.min())), max(self.s_max, float(s.max()))
 
 
+_CELL = 10.0  # m, side of a grid cell of LineLandmarks
+
+
+def _cell_range(lo: FloatArray, hi: FloatArray) -> tuple[int, int, int, int]:
+    return (math.floor(lo[0] / _CELL), math.floor(lo[1] / _CELL),
+            math.floor(hi[0] / _CELL), math.floor(hi[1] / _CELL))
+
+
+def _cells(cell_range: tuple[int, int, int, int]):
+    i0, j0, i1, j1 = cell_range
+    return ((i, j) for i in range(i0, i1 + 1) for j in range(j0, j1 + 1))
+
+
 def fit_line(points: FloatArray) -> tuple[FloatArray, float]:
     """Anchor (centroid) and normal angle of the principal line through ``points`` (N, 2)."""
     points = np.asarray(points, dtype=float)
@@ -82,8 +95,11 @@ class LineLandmarks:
     """All line landmarks of a map being built.
 
     Association runs for every detection, so the lines are also kept as arrays (one row
-    per line, ``_live`` masking dropped and merged ones); every change goes through the
-    methods here, which keep the rows in step with the objects."""
+    per line, ``_live`` masking dropped and merged ones) and in a grid of ``_CELL`` m
+    cells (each live line in every cell its segment's box, widened by the gates, touches):
+    a query looks only at the lines in the cells around it, so its cost does not grow with
+    the map. Every change goes through the methods here, which keep the rows and the grid
+    in step with the objects."""
 
     def __init__(
         self,
@@ -102,11 +118,40 @@ class LineLandmarks:
         self._rows = np.zeros((0, 6))  # theta, d, anchor x, anchor y, s_min, s_max
         self._live = np.zeros(0, dtype=bool)
         self._in_graph = np.zeros(0, dtype=bool)
+        self._grid: dict[tuple[int, int], set[int]] = {}
+        self._cells_of: dict[int, tuple[int, int, int, int]] = {}  # line -> its cell range
 
     def _sync(self, line: LineLandmark) -> None:
         self._rows[line.index] = (line.theta, line.d, *line.anchor, line.s_min, line.s_max)
         self._live[line.index] = line.merged_into is None
         self._in_graph[line.index] = line.in_graph
+        self._file(line)
+
+    def _file(self, line: LineLandmark) -> None:
+        """Keep ``line`` in the grid cells its (widened) segment box touches, if live."""
+        cells = None
+        if line.merged_into is None:
+            ends = np.array(line.end_points())
+            margin = self.gap + self.distance_gate
+            cells = _cell_range(ends.min(axis=0) - margin, ends.max(axis=0) + margin)
+        old = self._cells_of.get(line.index)
+        if cells == old:
+            return
+        if old is not None:
+            for cell in _cells(old):
+                self._grid[cell].discard(line.index)
+            del self._cells_of[line.index]
+        if cells is not None:
+            for cell in _cells(cells):
+                self._grid.setdefault(cell, set()).add(line.index)
+            self._cells_of[line.index] = cells
+
+    def _filed_near(self, lo: FloatArray, hi: FloatArray) -> FloatArray:
+        """Sorted indices of the lines filed in the cells that the box ``lo``-``hi`` touches."""
+        found: set[int] = set()
+        for cell in _cells(_cell_range(lo, hi)):
+            found.update(self._grid.get(cell, ()))
+        return np.array(sorted(found), dtype=int)
 
     def grow(self, index: int, mE: FloatArray) -> None:
         self.items[index].grow(mE)
@@ -129,14 +174,16 @@ class LineLandmarks:
 
     def near(self, point: FloatArray, radius: float) -> FloatArray:
         """Indices of graph lines whose segment passes within ``radius`` of ``point``."""
-        rows = self._rows
+        point = np.asarray(point, dtype=float)
+        filed = self._filed_near(point - radius, point + radius)
+        rows = self._rows[filed]
         n = np.column_stack([np.cos(rows[:, 0]), np.sin(rows[:, 0])])
         u = np.column_stack([-n[:, 1], n[:, 0]])
         foot = rows[:, 2:4] + rows[:, 1:2] * n
         s = np.clip(np.einsum("lk,lk->l", point - foot, u), rows[:, 4], rows[:, 5])
         closest = foot + s[:, None] * u
         close = np.hypot(*(closest - point).T) < radius
-        return np.flatnonzero(close & self._live & self._in_graph)
+        return filed[close & self._live[filed] & self._in_graph[filed]]
 
     # ------------------------------------------------------------------ association
     def candidates(self, mE: FloatArray) -> list[tuple[int, float]]:
@@ -144,9 +191,12 @@ class LineLandmarks:
         distance of its end points from each, nearest first."""
         seg = mE[1] - mE[0]
         length = float(np.linalg.norm(seg))
-        if length < 1e-9 or not self._live.any():
+        if length < 1e-9:
             return []
-        rows = self._rows
+        filed = self._filed_near(mE.min(axis=0), mE.max(axis=0))
+        if filed.size == 0:
+            return []
+        rows = self._rows[filed]
         n = np.column_stack([np.cos(rows[:, 0]), np.sin(rows[:, 0])])
         u = np.column_stack([-n[:, 1], n[:, 0]])
         parallel = np.abs(n @ (seg / length)) < self.sin_tolerance
@@ -155,11 +205,11 @@ class LineLandmarks:
         s = ((mE[:, None, :] - foot[None]) * u).sum(-1)  # (2, L) along each line
         lo, hi = rows[:, 4] - self.gap, rows[:, 5] + self.gap
         overlap = (s.max(axis=0) >= lo) & (s.min(axis=0) <= hi)
-        ok = self._live & parallel & (across.max(axis=0) < self.distance_gate) & overlap
+        ok = self._live[filed] & parallel & (across.max(axis=0) < self.distance_gate) & overlap
         hits = np.flatnonzero(ok)
         cost = across.mean(axis=0)[hits]
-        order = np.argsort(cost)
-        return [(int(hits[i]), float(cost[i])) for i in order]
+        order = np.argsort(cost, kind="stable")
+        return [(int(filed[hits[i]]), float(cost[i])) for i in order]
 
     def start(self, mE: FloatArray, keyframe: int) -> LineLandmark:
         """A tentative line through one detection."""
