@@ -155,9 +155,10 @@ class Graph:
         added as unit Jacobian factors, a step kept only if the nonlinear error drops (so
         the max-mixtures' switching is judged on the true error), lambda / 10 after a kept
         step and x 10 after a refused one. Written here rather than calling
-        gtsam.LevenbergMarquardtOptimizer because with Python CustomFactors that optimizer
-        spends ~15x longer per iteration than these same calls (measured on `garage`:
-        5 s against 0.5 s; BENCHMARKS.md).
+        gtsam.LevenbergMarquardtOptimizer because that optimizer calls the Python factors
+        with its own Values, which pybind11 copies for every call (see the module
+        docstring): ~15x longer per iteration on `garage` (5 s against 0.5 s). Here the
+        Values is ours, passed by reference.
         """
         values = self.estimate
         error = self.factors.error(values)
