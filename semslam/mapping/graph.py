@@ -24,7 +24,6 @@ the container factors never need their first-order shift.
 
 from __future__ import annotations
 
-import math
 import time
 from collections import defaultdict
 
@@ -83,7 +82,7 @@ class Graph:
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
         index = self.factors.size()
         self.factors.add(factor)
-        for key in factor.keys():
+        for key in factor.keys():  # noqa: SIM118 (a gtsam factor, not a dict)
             self._factors_of[key].append(index)
         self._batch = None
 
@@ -111,7 +110,7 @@ class Graph:
         self.work["linearize_s"] += linearized - started
         self.work["isam2_s"] += time.perf_counter() - linearized
         slots = list(result.getNewFactorsIndices())
-        for i, slot in zip(again, slots):
+        for i, slot in zip(again, slots[: len(again)], strict=True):
             self._slot[i] = slot
         self._slot.extend(slots[len(again):])
         self._in_isam = self.factors.size()
@@ -119,7 +118,8 @@ class Graph:
 
     def _linearized(self, index: int) -> gtsam.LinearContainerFactor:
         """Factor ``index`` linearised at ``_theta``, as a native factor for iSAM2."""
-        return gtsam.LinearContainerFactor(self.factors.at(index).linearize(self._theta), self._theta)
+        linear = self.factors.at(index).linearize(self._theta)
+        return gtsam.LinearContainerFactor(linear, self._theta)
 
     def _relinearized_by_isam2(self) -> list[int]:
         """The variables iSAM2 will relinearise in this update, by its own rule (largest
@@ -131,7 +131,8 @@ class Graph:
         delta = self.isam.getDelta()
         step = np.abs(delta.vector(keys))
         starts = np.cumsum([0] + [self._dims[key] for key in keys[:-1]])
-        moved = [keys[n] for n in np.flatnonzero(np.maximum.reduceat(step, starts) >= self._threshold)]
+        largest = np.maximum.reduceat(step, starts)  # per variable
+        moved = [keys[n] for n in np.flatnonzero(largest >= self._threshold)]
         if moved:
             steps = gtsam.VectorValues()
             for key in moved:
