@@ -251,23 +251,35 @@ class LineLandmarks:
 
     def duplicates(self, near: FloatArray, radius: float) -> list[tuple[int, int]]:
         """Pairs (keep, drop) of graph lines within ``radius`` of ``near`` that are one line:
-        parallel, each one's ends on the other, extents overlapping."""
-        live = [self.items[i] for i in self.near(near, radius)]
+        parallel, the second one's ends on the first one's line, extents overlapping. Pairs
+        are taken greedily in index order, each line in one pair at most."""
+        index = self.near(near, radius)
+        if index.size < 2:
+            return []
+        rows = self._rows[index]
+        theta, d, anchor = rows[:, 0], rows[:, 1], rows[:, 2:4]
+        s_min, s_max = rows[:, 4], rows[:, 5]
+        n = np.column_stack([np.cos(theta), np.sin(theta)])
+        u = np.column_stack([-n[:, 1], n[:, 0]])
+        foot = anchor + d[:, None] * n
+        ends = np.stack([foot + s_min[:, None] * u, foot + s_max[:, None] * u], axis=1)  # (k, 2, 2)
+        # [i, j, e]: end e of line j measured from line i
+        across = ((ends[None] - anchor[:, None, None]) * n[:, None, None]).sum(-1)
+        across -= d[:, None, None]
+        along = ((ends[None] - foot[:, None, None]) * u[:, None, None]).sum(-1)
+        same = (
+            (np.abs(np.sin(theta[:, None] - theta[None, :])) <= self.sin_tolerance / 2)
+            & (np.abs(across).max(axis=-1) <= self.distance_gate / 2)
+            & (along.max(axis=-1) >= s_min[:, None] - self.gap / 2)
+            & (along.min(axis=-1) <= s_max[:, None] + self.gap / 2)
+        )
         pairs = []
         taken: set[int] = set()
-        for i, a in enumerate(live):
-            for b in live[i + 1 :]:
-                if a.index in taken or b.index in taken:
-                    continue
-                if abs(math.sin(a.theta - b.theta)) > self.sin_tolerance / 2:
-                    continue
-                ends_b = np.array(b.end_points())
-                if np.abs(a.across(ends_b)).max() > self.distance_gate / 2:
-                    continue
-                s = a.along(ends_b)
-                if s.max() < a.s_min - self.gap / 2 or s.min() > a.s_max + self.gap / 2:
-                    continue
-                keep, drop = (a, b) if len(a.detections) >= len(b.detections) else (b, a)
-                pairs.append((keep.index, drop.index))
-                taken.update((a.index, b.index))
+        for i, j in zip(*np.nonzero(np.triu(same, 1)), strict=True):
+            a, b = self.items[index[i]], self.items[index[j]]
+            if a.index in taken or b.index in taken:
+                continue
+            keep, drop = (a, b) if len(a.detections) >= len(b.detections) else (b, a)
+            pairs.append((keep.index, drop.index))
+            taken.update((a.index, b.index))
         return pairs
