@@ -49,7 +49,6 @@ class Graph:
         self._batch: gtsam.Values | None = None  # set by optimize_batch
         self._keys: set[int] = set()
         self._dims: dict[int, int] = {}  # tangent dimension of every variable
-        self._kinds: dict[int, str] = {}  # "pose", "point" or "vector"
         self._unit = {d: gtsam.noiseModel.Unit.Create(d) for d in (1, 2, 3)}
         self._new_values = gtsam.Values()
         self._theta = gtsam.Values()  # linearisation point of every variable in iSAM2
@@ -57,27 +56,26 @@ class Graph:
         self._slot: list[int] = []  # iSAM2 factor index of each factor
         self._factors_of: dict[int, list[int]] = defaultdict(list)
         self._threshold = relinearize_threshold
-        self.relinearize_skip = relinearize_skip
+        self._skip = relinearize_skip
         self._updates = 0
         self.work = {"linearized": 0, "linearize_s": 0.0, "isam2_s": 0.0}  # for profiles
 
     # -- building
-    def _insert(self, key: int, value, dim: int, kind: str) -> None:
+    def _insert(self, key: int, value, dim: int) -> None:
         self._new_values.insert(key, value)
         self._keys.add(key)
         self._dims[key] = dim
-        self._kinds[key] = kind
         self._batch = None
 
     def add_pose(self, key: int, pose: FloatArray) -> None:
-        self._insert(key, gtsam.Pose2(*map(float, pose)), 3, "pose")
+        self._insert(key, gtsam.Pose2(*map(float, pose)), 3)
 
     def add_point(self, key: int, point: FloatArray) -> None:
-        self._insert(key, np.asarray(point, dtype=float), 2, "point")
+        self._insert(key, np.asarray(point, dtype=float), 2)
 
     def add_vector(self, key: int, vector: FloatArray) -> None:
         vector = np.asarray(vector, dtype=float)
-        self._insert(key, vector, len(vector), "vector")
+        self._insert(key, vector, len(vector))
 
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
         index = self.factors.size()
@@ -93,7 +91,7 @@ class Graph:
     def update(self) -> None:
         """One iSAM2 step with everything added since the last one."""
         self._updates += 1
-        moved = self._relinearized_by_isam2() if self._updates % self.relinearize_skip == 0 else []
+        moved = self._relinearized_by_isam2() if self._updates % self._skip == 0 else []
         again = sorted({i for key in moved for i in self._factors_of[key] if i < self._in_isam})
         new = list(range(self._in_isam, self.factors.size()))
         self._theta.insert(self._new_values)
