@@ -24,7 +24,6 @@ the container factors never need their first-order shift.
 
 from __future__ import annotations
 
-import time
 from collections import defaultdict
 
 import gtsam
@@ -58,7 +57,6 @@ class Graph:
         self._threshold = relinearize_threshold
         self._skip = relinearize_skip
         self._updates = 0
-        self.work = {"linearized": 0, "linearize_s": 0.0, "isam2_s": 0.0}  # for profiles
 
     # -- building
     def _insert(self, key: int, value, dim: int) -> None:
@@ -96,17 +94,12 @@ class Graph:
         new = list(range(self._in_isam, self.factors.size()))
         self._theta.insert(self._new_values)
         linear = gtsam.NonlinearFactorGraph()
-        started = time.perf_counter()
         try:
             for i in again + new:
                 linear.add(self._linearized(i))
-            linearized = time.perf_counter()
             result = self.isam.update(linear, self._new_values, [self._slot[i] for i in again])
         except RuntimeError as e:  # gtsam's indeterminate system: say so in one line
             raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
-        self.work["linearized"] += len(again) + len(new)
-        self.work["linearize_s"] += linearized - started
-        self.work["isam2_s"] += time.perf_counter() - linearized
         slots = list(result.getNewFactorsIndices())
         for i, slot in zip(again, slots[: len(again)], strict=True):
             self._slot[i] = slot
