@@ -15,15 +15,18 @@ and CTC needs no character alignment or length head. The graph takes raw grey le
 normalises each patch itself and returns per-frame probabilities with the calibration
 temperature already applied, so the reader is plain numpy.
 
-Confidence of a reading = product over its characters of the per-character maximum
-probability (over the frames that emitted it), with the temperature fitted on held-out
-simulated views so that it is honest (see the model card). An empty decoding (the model
-sees no text) gives ``label=None``, as does a reading below ``min_confidence``.
+Confidence of a reading = the model's probability of the whole label: the CTC sum over
+every frame alignment that spells it (:func:`ctc_label_probability`), with the
+temperature fitted on held-out simulated views. An earlier confidence, the product of the
+emitted characters' probabilities, never saw a character the greedy path dropped (a blank
+just ahead of a likely "T" reads "T21" as "21"): on the demo drive readings it gave 0.9 or
+more were 95.4 % right, with the label probability 99.5 % (BENCHMARKS.md). An empty
+decoding (the model sees no text) gives ``label=None``, as does a reading below
+``min_confidence``.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,15 +155,53 @@ def ctc_greedy(probs: np.ndarray, alphabet: str = ALPHABET) -> tuple[str, tuple[
     return "".join(chars), tuple(confs)
 
 
+def ctc_label_probability(probs: np.ndarray, label: str, alphabet: str = ALPHABET) -> float:
+    """Probability of ``label`` under one (T, C) array of per-frame probabilities (class 0
+    blank): the CTC forward sum over every alignment of T frames that collapses to it
+    (Graves et al. 2006), frames independent given the image. The empty label is the
+    all-blank path."""
+    p = np.asarray(probs, dtype=float)
+    if p.ndim != 2 or p.shape[1] != len(alphabet) + 1:
+        raise PerceptionError(
+            f"ctc_label_probability: expected (T, {len(alphabet) + 1}) probabilities, "
+            f"got {p.shape}"
+        )
+    unknown = set(label) - set(alphabet)
+    if unknown:
+        raise PerceptionError(f"ctc_label_probability: {sorted(unknown)} not in the alphabet")
+    if len(p) == 0:
+        return 1.0 if not label else 0.0
+    states = [0]  # blank, c1, blank, c2, ..., blank
+    for ch in label:
+        states += [alphabet.index(ch) + 1, 0]
+    states_arr = np.array(states)
+    # a state may be entered from itself, the one before, or (a character different from
+    # the one two back) skip the blank between them
+    skip = np.zeros(len(states), bool)
+    skip[2:] = (states_arr[2:] != 0) & (states_arr[2:] != states_arr[:-2])
+    alpha = np.zeros(len(states))
+    alpha[0] = p[0, states[0]]
+    if len(states) > 1:
+        alpha[1] = p[0, states[1]]
+    for t in range(1, len(p)):
+        entered = alpha.copy()
+        entered[1:] += alpha[:-1]
+        entered[2:] += np.where(skip[2:], alpha[:-2], 0.0)
+        alpha = entered * p[t, states_arr]
+    total = alpha[-1] + (alpha[-2] if len(states) > 1 else 0.0)
+    return float(np.clip(total, 0.0, 1.0))
+
+
 def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdReading:
-    """A :class:`SlotIdReading` from one (T, C) probability array: greedy decoding,
-    confidence = product of the characters' probabilities; nothing decoded -> None with
-    the confidence that there is nothing (the lowest blank probability)."""
+    """A :class:`SlotIdReading` from one (T, C) probability array: greedy decoding, the
+    confidence the label's CTC probability (:func:`ctc_label_probability`); nothing
+    decoded -> None with the probability that there is nothing (the all-blank path)."""
     label, confs = ctc_greedy(probs, alphabet)
+    if len(probs) == 0:
+        return SlotIdReading(None, 1.0, ())
+    conf = ctc_label_probability(probs, label, alphabet)
     if not label:
-        blank = float(np.asarray(probs, float)[:, 0].min()) if len(probs) else 1.0
-        return SlotIdReading(None, float(np.clip(blank, 0.0, 1.0)), ())
-    conf = float(np.clip(math.prod(confs), 0.0, 1.0))
+        return SlotIdReading(None, conf, ())
     return SlotIdReading(label, conf, tuple(float(np.clip(c, 0.0, 1.0)) for c in confs))
 
 
@@ -236,5 +277,6 @@ __all__ = [
     "SlotIdReading",
     "crop_id_patch",
     "ctc_greedy",
+    "ctc_label_probability",
     "reading_from_probs",
 ]

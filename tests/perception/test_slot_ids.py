@@ -18,6 +18,7 @@ from semslam.perception.slot_ids import (
     SlotIdReading,
     crop_id_patch,
     ctc_greedy,
+    ctc_label_probability,
     reading_from_probs,
 )
 
@@ -98,7 +99,7 @@ def test_ctc_greedy_merges_repeats_and_drops_blanks():
     assert label == "B117"
     assert len(confs) == 4 and all(abs(x - 0.9) < 1e-9 for x in confs)
     r = reading_from_probs(_probs(seq, p=0.8))
-    assert r.label == "B117" and abs(r.confidence - 0.8**4) < 1e-9
+    assert r.label == "B117" and r.char_confidences == pytest.approx((0.8,) * 4)
     blank = reading_from_probs(_probs([]))
     assert blank.label is None and blank.char_confidences == () and 0 <= blank.confidence <= 1
     with pytest.raises(PerceptionError):
@@ -175,3 +176,41 @@ def test_shipped_model_reads_held_out_views(held_out):
     assert reader.read_patches([]) == []
     with pytest.raises(PerceptionError):
         reader.read_patches([np.zeros((10, 10), np.uint8)])
+
+
+@pytest.mark.parametrize("label", ["", "7", "A1", "11", "B17"])
+def test_ctc_label_probability_is_the_sum_over_alignments(label):
+    # brute force over every path of T frames through a 4-class alphabet
+    import itertools
+
+    alphabet = "17AB"
+    rng = np.random.default_rng(len(label))
+    T = 6
+    p = rng.dirichlet(np.ones(len(alphabet) + 1), size=T)
+    ours = ctc_label_probability(p, label, alphabet)
+    brute = 0.0
+    for path in itertools.product(range(len(alphabet) + 1), repeat=T):
+        out, prev = [], 0
+        for c in path:
+            if c != 0 and c != prev:
+                out.append(alphabet[c - 1])
+            prev = c
+        if "".join(out) == label:
+            brute += float(np.prod(p[np.arange(T), path]))
+    assert ours == pytest.approx(brute, rel=1e-9, abs=1e-15)
+    with pytest.raises(PerceptionError):
+        ctc_label_probability(p, "Z", alphabet)
+
+
+def test_confidence_counts_a_letter_the_greedy_path_dropped():
+    # "T21" where the T's frame is 55 % blank, 45 % T: greedy reads "21", and its
+    # characters alone look certain; the label probability says 55 %
+    c = {ch: k + 1 for k, ch in enumerate(ALPHABET)}
+    seq = [0, 0, c["2"], 0, c["1"], 0]
+    p = _probs(seq, p=0.999, T=6)
+    p[1] = 0.0
+    p[1, 0], p[1, c["T"]] = 0.55, 0.45
+    r = reading_from_probs(p)
+    assert r.label == "21" and min(r.char_confidences) > 0.99
+    assert 0.5 < r.confidence < 0.56
+    assert ctc_label_probability(p, "T21") == pytest.approx(0.45, abs=0.01)
