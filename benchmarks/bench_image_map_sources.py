@@ -2,8 +2,9 @@
 
 On a simulated drive with images (the demo's mapping drive, for instance), perceives every
 frame once, then maps it with each observation kind taken from the images or from the
-simulator's noisy sensor (which has independent errors), and with the image slot corners'
-declared sigma scaled. Prints the corner RMSE of each map against the drive's world.json.
+simulator's noisy sensor (which has independent errors), and with the sigmas the image
+slot corners and painted lines declare changed. Prints the corner RMSE of each map against
+the drive's world.json.
 
     PYTHONPATH=. python benchmarks/bench_image_map_sources.py DEMO_OUT/drive_map
 """
@@ -46,6 +47,14 @@ def _scaled(frames: list[FrameObservations], k: float) -> list[FrameObservations
     ]
 
 
+def _lines_at(frames: list[FrameObservations], sigma: float) -> list[FrameObservations]:
+    return [
+        dataclasses.replace(f, markings=tuple(
+            dataclasses.replace(m, sigma=sigma) for m in f.markings))
+        for f in frames
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("drive")
@@ -76,6 +85,8 @@ def main() -> None:
         "images, slot corner sigma x2": _scaled(images, 2.0),
         "images, slot corner sigma x3": _scaled(images, 3.0),
     }
+    for sigma in (0.05, 0.10, 0.20):
+        variants[f"images, lines declared at {sigma:.2f} m"] = _lines_at(images, sigma)
     odometry = drive.odometry()
     print("| observations | corner RMSE m | slots matched |")
     print("|---|---|---|")

@@ -100,12 +100,15 @@ class MarkingObservation:
         vA, vB: (2,) end points in the vehicle frame, metres (the visible part only).
         width: painted line width, metres.
         confidence: probability in [0, 1] that the segment is a real marking.
+        sigma: 1-sigma of each end point across the line, metres, as the detector
+            declares it; None: the consumer's configured default (``marking_sigma``).
     """
 
     vA: FloatArray
     vB: FloatArray
     width: float
     confidence: float
+    sigma: float | None = None
 
 
 @dataclass(frozen=True, eq=False)

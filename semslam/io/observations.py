@@ -6,7 +6,7 @@ Everything is in the vehicle frame (x forward, y left), metres and radians::
      "slots": [{"corners": [[x, y] x4], "kind", "label", "label_confidence",
                 "confidence", "corner_sigma"}],
      "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
-     "markings": [{"a": [x, y], "b": [x, y], "width", "confidence"}]}
+     "markings": [{"a": [x, y], "b": [x, y], "width", "confidence", "sigma" (optional)}]}
 
 Missing ``slots``/``tags``/``markings`` lists mean none were seen. Times
 strictly increase from line to line.
@@ -157,12 +157,15 @@ def _tag_from_field(f: Field) -> TagObservation:
 
 
 def _marking_to_dict(marking: MarkingObservation) -> dict[str, Any]:
-    return {
+    out = {
         "a": np.asarray(marking.vA, dtype=float).tolist(),
         "b": np.asarray(marking.vB, dtype=float).tolist(),
         "width": float(marking.width),
         "confidence": float(marking.confidence),
     }
+    if marking.sigma is not None:
+        out["sigma"] = float(marking.sigma)
+    return out
 
 
 def _marking_from_field(f: Field) -> MarkingObservation:
@@ -171,4 +174,5 @@ def _marking_from_field(f: Field) -> MarkingObservation:
         vB=f["b"].array((2,)),
         width=f["width"].number(positive=True),
         confidence=f["confidence"].number(0.0, 1.0),
+        sigma=sigma.number(positive=True) if (sigma := f.get("sigma")) is not None else None,
     )

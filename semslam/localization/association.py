@@ -214,9 +214,12 @@ class LocalMap:
             return
         cfg = self.cfg
         vE = np.array([[m.vA, m.vB] for m in frame.markings], dtype=float)  # (D, 2, 2)
+        sigma = np.array([  # end point across the line: as declared, else configured
+            cfg.marking_endpoint_sigma if m.sigma is None else m.sigma for m in frame.markings
+        ])
         length = np.linalg.norm(vE[:, 1] - vE[:, 0], axis=1)
-        vE = vE[length >= cfg.marking_min_length]
-        length = length[length >= cfg.marking_min_length]
+        long_enough = length >= cfg.marking_min_length
+        vE, sigma, length = vE[long_enough], sigma[long_enough], length[long_enough]
         if not len(vE):
             return
         c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -238,7 +241,7 @@ class LocalMap:
             math.radians(cfg.marking_max_angle_deg)
         )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < L + 0.5)
         det, own, a, n = det[keep], own[keep], a[keep], n[keep]
-        R1 = cfg.marking_endpoint_sigma**2 + cfg.marking_map_sigma**2
+        R1 = sigma[det] ** 2 + cfg.marking_map_sigma**2  # (pairs,)
         # residuals (0 - across) and their rows [n, n . dR/dyaw e] for both end points
         r = -np.einsum("pk,pek->pe", n, mE[det] - a[:, None, :])
         e = vE[det]  # (pairs, 2, 2)
@@ -246,7 +249,7 @@ class LocalMap:
         H = np.empty((len(det), 2, 3))
         H[..., 0], H[..., 1] = n[:, None, 0], n[:, None, 1]
         H[..., 2] = np.einsum("pk,pek->pe", n, dE)
-        S = H @ P @ H.transpose(0, 2, 1) + np.eye(2) * R1
+        S = H @ P @ H.transpose(0, 2, 1) + np.eye(2) * R1[:, None, None]
         det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
         d2 = (S[:, 1, 1] * r[:, 0] ** 2 - 2 * S[:, 0, 1] * r[:, 0] * r[:, 1]
               + S[:, 0, 0] * r[:, 1] ** 2) / det_S
@@ -269,9 +272,10 @@ class LocalMap:
             return
         w = np.array(winners)
         k = np.repeat(own[w], 2)
+        end_sigma = np.repeat(sigma[det[w]], 2)  # per end point
         m = MarkingMeasurement.build(
             pose, vE[det[w]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-            math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
+            np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
             reach=cfg.marking_clamp_reach,
         )
         # gate again the winners that got clamped rows (the others passed with these rows)
@@ -294,9 +298,10 @@ class LocalMap:
         if len(good) < len(w):
             g = np.array(good)
             k = np.repeat(own[w[g]], 2)
+            end_sigma = np.repeat(sigma[det[w[g]]], 2)
             m = MarkingMeasurement.build(
                 pose, vE[det[w[g]]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-                math.sqrt(R1), margin=2 * cfg.marking_endpoint_sigma,
+                np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
                 reach=cfg.marking_clamp_reach,
             )
         self._accept(out, "marking", m, observations=len(good))

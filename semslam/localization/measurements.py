@@ -119,11 +119,12 @@ class MarkingMeasurement(Measurement):
         vE: FloatArray,
         a: FloatArray,
         b: FloatArray,
-        sigma: float,
-        margin: float = 0.0,
+        sigma: float | FloatArray,
+        margin: float | FloatArray = 0.0,
         reach: float = math.inf,
     ) -> MarkingMeasurement:
-        """The measurement of end points ``vE`` against markings ``(a, b)``, deciding at
+        """The measurement of end points ``vE`` against markings ``(a, b)`` (``sigma`` and
+        ``margin``: metres, one for all or one per end point), deciding at
         ``pose`` which end points fall beyond their marking: by more than ``margin`` (noise)
         and less than ``reach`` they are clamped to its end; farther out the map's marking
         is taken as incomplete there (a map drawn from what was seen), and only the
@@ -141,7 +142,7 @@ class MarkingMeasurement(Measurement):
         z = np.zeros(int(sizes.sum()))
         z[rows[clamped]] = vE[clamped, 0]
         z[rows[clamped] + 1] = vE[clamped, 1]
-        R = np.eye(len(z)) * sigma**2
+        R = np.diag(np.repeat(np.broadcast_to(np.asarray(sigma, float), len(vE)), sizes) ** 2)
         return MarkingMeasurement(z, R, vE, a, b, clamped, end, rows)
 
     def _normals(self) -> FloatArray:

@@ -37,8 +37,8 @@ class LineLandmark:
     s_min: float
     s_max: float
     created: int  # keyframe
-    detections: list[tuple[int, FloatArray, float]] = field(default_factory=list)
-    # (keyframe, end points (2, 2) in the vehicle frame, width m)
+    detections: list[tuple[int, FloatArray, float, float]] = field(default_factory=list)
+    # (keyframe, end points (2, 2) in the vehicle frame, width m, sigma across the line m)
     in_graph: bool = False
     merged_into: int | None = None
 

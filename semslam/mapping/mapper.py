@@ -325,15 +325,15 @@ class Mapper:
         mE = transform_points(self.keyframe_poses[k], vE)
         candidates = self.lines.candidates(mE)
         if not candidates:
-            self.lines.start(mE, k).detections.append((k, vE, obs.width, obs.confidence))
+            self.lines.start(mE, k).detections.append((k, vE, obs.width, self._line_sigma(obs)))
             return
         if len(candidates) > 1 and candidates[1][1] < 2 * candidates[0][1] + 0.02:
             return  # between two lines: leave it out rather than guess
         line = self.lines.items[candidates[0][0]]
-        line.detections.append((k, vE, obs.width, obs.confidence))
+        line.detections.append((k, vE, obs.width, self._line_sigma(obs)))
         if line.in_graph:
             self.lines.grow(line.index, mE)
-            self._add_marking_factor(line, k, vE, obs.confidence)
+            self._add_marking_factor(line, k, vE, line.detections[-1][3])
             return
         points = np.vstack([transform_points(self.keyframe_poses[j], e)
                             for j, e, _, _ in line.detections])
@@ -341,11 +341,16 @@ class Mapper:
         if len(line.detections) >= self.cfg.marking_min_support and self.use_graph:
             self.lines.join_graph(line.index)
             self.graph.add_vector(L(line.index), np.array([line.theta, line.d]))
-            for j, e, _, confidence in line.detections:
-                self._add_marking_factor(line, j, e, confidence)
+            for j, e, _, sigma in line.detections:
+                self._add_marking_factor(line, j, e, sigma)
 
-    def _add_marking_factor(self, line, k: int, vE: FloatArray, confidence: float) -> None:
-        sigma = self.cfg.marking_sigma / math.sqrt(max(confidence, 0.05))
+    def _line_sigma(self, obs: MarkingObservation) -> float:
+        """1-sigma across the line of a detection's end points: the one it declares (or
+        ``marking_sigma``), divided by the square root of its confidence."""
+        sigma = self.cfg.marking_sigma if obs.sigma is None else obs.sigma
+        return sigma / math.sqrt(max(obs.confidence, 0.05))
+
+    def _add_marking_factor(self, line, k: int, vE: FloatArray, sigma: float) -> None:
         residual = marking_observation_residual(X(k), L(line.index), line.anchor, vE)
         noise = (
             null_hypothesis_noise(np.eye(2) * sigma * sigma, self.null)

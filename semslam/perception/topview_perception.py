@@ -9,6 +9,7 @@ observations for the mapper and the localizer. Library only: no file I/O.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -31,6 +32,16 @@ instead: on the demo drive (garage seed 1) the map from images goes from 0.124 t
 corner RMSE, the localizer's ATE from 0.133 to 0.093 m and its NEES from 17.9 to 4.1
 (0.10 m: 0.095 m, 0.101 m, 6.2). BENCHMARKS.md, `bench_slot_corner_errors.py`,
 `bench_image_map_sources.py`."""
+
+DEFAULT_LINE_SIGMA = 0.15
+"""m: 1-sigma declared for a detected painted line's end points across the line. The same
+reason as the corners: a line is detected a little off in the same way in every frame that
+sees it (the top view's own distortion where the ground is not flat, paint edges), and
+the simulator's independent 0.05 m (``mapping.marking_sigma``) let the image lines pull the
+map from images off: corner RMSE 0.088 m with them, 0.067 m without; declared at 0.10 /
+0.15 / 0.20 m, 0.071 / 0.068 / 0.068 m (the demo's mapping drive, garage seed 1;
+`bench_image_map_sources.py`). The real garage masks use 0.15 m for the same reason
+(`pipeline/import_bev.py`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +81,7 @@ class TopviewPerception:
         slot_detector, id_reader, marking_detector: injected detectors (default: the
             shipped models and the tuned line detector); ``lines=False`` skips lines.
         corner_sigma: 1-sigma of each reported slot corner, metres.
+        line_sigma: 1-sigma of each reported line end point across the line, metres.
     """
 
     def __init__(
@@ -80,12 +92,14 @@ class TopviewPerception:
         marking_detector: MarkingDetector | None = None,
         lines: bool = True,
         corner_sigma: float = DEFAULT_CORNER_SIGMA,
+        line_sigma: float = DEFAULT_LINE_SIGMA,
     ) -> None:
         self.spec = spec or TopviewSpec()
         self.slot_detector = slot_detector or SlotDetector()
         self.id_reader = id_reader or SlotIdReader()
         self.marking_detector = (marking_detector or MarkingDetector()) if lines else None
         self.corner_sigma = corner_sigma
+        self.line_sigma = line_sigma
 
     def detect(self, topview: np.ndarray) -> TopviewDetections:
         """Marking points, slots with their IDs, and lines of one BGR uint8 top view."""
@@ -101,7 +115,10 @@ class TopviewPerception:
         t2 = time.perf_counter()
         markings: tuple[MarkingObservation, ...] = ()
         if self.marking_detector is not None:
-            markings = self.marking_detector.detect(topview, self.spec)
+            markings = tuple(
+                dataclasses.replace(m, sigma=self.line_sigma)
+                for m in self.marking_detector.detect(topview, self.spec)
+            )
         t3 = time.perf_counter()
         timings = {
             "slots": (t1 - t0) * 1e3,
@@ -124,4 +141,10 @@ class TopviewPerception:
         )
 
 
-__all__ = ["DEFAULT_CORNER_SIGMA", "TopviewDetections", "TopviewPerception", "into_slot_direction"]
+__all__ = [
+    "DEFAULT_CORNER_SIGMA",
+    "DEFAULT_LINE_SIGMA",
+    "TopviewDetections",
+    "TopviewPerception",
+    "into_slot_direction",
+]

@@ -52,7 +52,12 @@ tags = st.builds(
     covariance=arrays((3, 3)),
 )
 markings = st.builds(
-    MarkingObservation, vA=arrays((2,)), vB=arrays((2,)), width=positive, confidence=unit
+    MarkingObservation,
+    vA=arrays((2,)),
+    vB=arrays((2,)),
+    width=positive,
+    confidence=unit,
+    sigma=st.none() | positive,
 )
 
 
@@ -138,6 +143,10 @@ def _write(path: Path, documents: list[dict]) -> None:
         (
             lambda d: d["markings"][0].update(a=[1.0, float("nan")]),
             r"line 3: markings/0/a/1: NaN is not allowed",
+        ),
+        (
+            lambda d: d["markings"][0].update(sigma=-0.1),
+            r"line 3: markings/0/sigma: must be > 0",
         ),
         (lambda d: d.update(t=0.05), r"line 3: time goes backwards \(0\.050 after 0\.100\)"),
         (lambda d: d.pop("t"), r"line 3: missing field 't'"),

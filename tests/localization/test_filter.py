@@ -59,6 +59,16 @@ def test_marking_measurement_measures_across_inside_and_the_end_point_beyond():
     np.testing.assert_allclose(m.jacobian(pose), numerical_jacobian(m, pose), atol=1e-7)
 
 
+def test_marking_measurement_takes_a_sigma_per_end_point():
+    a, b = np.array([[0.0, 0.0], [0.0, 0.0]]), np.array([[10.0, 0.0], [10.0, 0.0]])
+    pose = np.zeros(3)
+    ends = np.array([[4.0, 0.1], [11.0, 0.0]])  # one across, one clamped (two rows)
+    m = MarkingMeasurement.build(pose, ends, a, b, np.array([0.05, 0.15]), margin=0.1)
+    np.testing.assert_allclose(np.diag(m.R), [0.05**2, 0.15**2, 0.15**2])
+    scalar = MarkingMeasurement.build(pose, ends, a, b, 0.05, margin=0.1)
+    np.testing.assert_allclose(np.diag(scalar.R), [0.05**2] * 3)
+
+
 def test_sigma_points_reproduce_mean_and_covariance():
     rng = np.random.default_rng(0)
     A = rng.normal(size=(5, 5))

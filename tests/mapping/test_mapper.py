@@ -188,3 +188,14 @@ def test_a_heading_jump_is_closed_by_agreeing_ids():
     assert closed.statistics["loop_closures_by_id"] >= 1
     assert metrics.false_slots == 0 and metrics.duplicate_slots == 0 and metrics.wrong_merges == 0
     assert results[0.0][1].false_slots > 0
+
+
+def test_a_line_detection_is_weighted_by_the_sigma_it_declares():
+    from semslam.types import MarkingObservation
+
+    t = np.array([0.0, 1.0])
+    mapper = Mapper(MappingConfig(marking_sigma=0.05), np.zeros(3), t, np.ones(2), np.zeros(2))
+    a, b = np.array([1.0, 1.0]), np.array([3.0, 1.0])
+    assert mapper._line_sigma(MarkingObservation(a, b, 0.15, 1.0)) == pytest.approx(0.05)
+    assert mapper._line_sigma(MarkingObservation(a, b, 0.15, 1.0, 0.2)) == pytest.approx(0.2)
+    assert mapper._line_sigma(MarkingObservation(a, b, 0.15, 0.25, 0.2)) == pytest.approx(0.4)
