@@ -6,7 +6,7 @@ simulator's noisy sensor (which has independent errors), and with the sigmas the
 slot corners and painted lines declare changed. Prints the corner RMSE of each map against
 the drive's world.json.
 
-    PYTHONPATH=. python benchmarks/bench_image_map_sources.py DEMO_OUT/drive_map
+    PYTHONPATH=. python benchmarks/bench_image_map_sources.py DEMO_OUT/drive_map [--grid]
 """
 
 from __future__ import annotations
@@ -47,6 +47,14 @@ def _scaled(frames: list[FrameObservations], k: float) -> list[FrameObservations
     ]
 
 
+def _corners_at(frames: list[FrameObservations], sigma: float) -> list[FrameObservations]:
+    return [
+        dataclasses.replace(f, slots=tuple(
+            dataclasses.replace(s, corner_sigma=sigma) for s in f.slots))
+        for f in frames
+    ]
+
+
 def _lines_at(frames: list[FrameObservations], sigma: float) -> list[FrameObservations]:
     return [
         dataclasses.replace(f, markings=tuple(
@@ -58,6 +66,10 @@ def _lines_at(frames: list[FrameObservations], sigma: float) -> list[FrameObserv
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("drive")
+    parser.add_argument(
+        "--grid", action="store_true",
+        help="only the corner RMSE over declared corner sigma x line sigma",
+    )
     args = parser.parse_args()
     drive = Drive.open(args.drive)
     config = load_config(None)
@@ -88,16 +100,28 @@ def main() -> None:
     for sigma in (0.05, 0.10, 0.20):
         variants[f"images, lines declared at {sigma:.2f} m"] = _lines_at(images, sigma)
     odometry = drive.odometry()
-    print("| observations | corner RMSE m | slots matched |")
-    print("|---|---|---|")
-    for name, frames in variants.items():
+
+    def corner_rmse(frames: list[FrameObservations]) -> tuple[float, int]:
         mapper = Mapper(config.mapping, drive.start_pose, odometry.t, odometry.speed,
                         odometry.yaw_rate)
         for frame in frames:
             mapper.add_frame(frame)
         metrics = evaluate_map(mapper.finish().map, drive.world())
-        print(f"| {name} | {metrics.corner_rmse_m:.3f} | {metrics.slots_matched} |", flush=True)
+        return metrics.corner_rmse_m, metrics.slots_matched
 
+    if args.grid:
+        corners, lines = (0.10, 0.15, 0.20, 0.30, 0.45), (0.05, 0.10, 0.15, 0.20)
+        print("| corner sigma \\ line sigma | " + " | ".join(f"{s:.2f} m" for s in lines) + " |")
+        print("|---" * (len(lines) + 1) + "|")
+        for c in corners:
+            row = [corner_rmse(_lines_at(_corners_at(images, c), s))[0] for s in lines]
+            print(f"| {c:.2f} m | " + " | ".join(f"{r:.3f}" for r in row) + " |", flush=True)
+        return
+    print("| observations | corner RMSE m | slots matched |")
+    print("|---|---|---|")
+    for name, frames in variants.items():
+        rmse, matched = corner_rmse(frames)
+        print(f"| {name} | {rmse:.3f} | {matched} |", flush=True)
 
 if __name__ == "__main__":
     main()

@@ -22,26 +22,26 @@ from semslam.perception.slots import DetectedSlot, SlotDetector, slot_observatio
 from semslam.rig import TopviewSpec
 from semslam.types import MarkingObservation, SlotObservation
 
-DEFAULT_CORNER_SIGMA = 0.15
+DEFAULT_CORNER_SIGMA = 0.30
 """m: 1-sigma declared for a detected slot corner, for a map or a filter that treats the
 frames as independent. One frame's corners are better than this (0.027 m RMS per axis at
 the entrance, 0.054 m at the rear), but part of the error is the same in every frame that
 sees a slot (0.016 / 0.033 m RMS per slot), so averaging ~50 frames does not shrink it as
-independent noise would. Declaring 0.15 m gives the graph and the filter that information
-instead: on the demo drive (garage seed 1) the map from images goes from 0.124 to 0.088 m
-corner RMSE, the localizer's ATE from 0.133 to 0.093 m and its NEES from 17.9 to 4.1
-(0.10 m: 0.095 m, 0.101 m, 6.2). BENCHMARKS.md, `bench_slot_corner_errors.py`,
-`bench_image_map_sources.py`."""
+independent noise would: 0.033 m x sqrt(50) is about 0.25 m. Chosen with the painted lines'
+sigma on two worlds (`bench_image_map_sources.py --grid`, the demo's mapping drives of
+garage seeds 1 and 2): map corner RMSE with lines at 0.15 m, corners at 0.10 / 0.15 / 0.20 /
+0.30 / 0.45 m: 0.083 / 0.068 / 0.061 / 0.055 / 0.054 m (seed 1) and 0.109 / 0.083 / 0.065 /
+0.048 / 0.043 m (seed 2). The demo end to end, 0.15 -> 0.30 m: map 0.068 -> 0.055 m and
+0.083 -> 0.048 m, localizer ATE 0.073 -> 0.058 m and 0.090 -> 0.059 m, its NEES 2.2 -> 1.3
+and 5.4 -> 1.9 (conservative now). BENCHMARKS.md, `bench_slot_corner_errors.py`."""
 
 DEFAULT_LINE_SIGMA = 0.15
 """m: 1-sigma declared for a detected painted line's end points across the line. The same
 reason as the corners: a line is detected a little off in the same way in every frame that
-sees it (the top view's own distortion where the ground is not flat, paint edges), and
-the simulator's independent 0.05 m (``mapping.marking_sigma``) let the image lines pull the
-map from images off: corner RMSE 0.088 m with them, 0.067 m without; declared at 0.10 /
-0.15 / 0.20 m, 0.071 / 0.068 / 0.068 m (the demo's mapping drive, garage seed 1;
-`bench_image_map_sources.py`). The real garage masks use 0.15 m for the same reason
-(`pipeline/import_bev.py`)."""
+sees it, and the simulator's independent 0.05 m (``mapping.marking_sigma``) let the image
+lines pull the map off on seed 1 (corners at 0.30 m; lines at 0.05 / 0.10 / 0.15 / 0.20 m:
+0.089 / 0.059 / 0.055 / 0.056 m; seed 2: 0.080 / 0.046 / 0.048 / 0.052 m). The real garage
+masks use 0.15 m for the same reason (`pipeline/import_bev.py`)."""
 
 
 @dataclass(frozen=True, eq=False)
