@@ -323,17 +323,18 @@ class Mapper:
             return
         self.marking_detections.append((k, vE, float(obs.width), float(obs.confidence)))
         mE = transform_points(self.keyframe_poses[k], vE)
+        sigma = self._line_sigma(obs)
         candidates = self.lines.candidates(mE)
         if not candidates:
-            self.lines.start(mE, k).detections.append((k, vE, obs.width, self._line_sigma(obs)))
+            self.lines.start(mE, k).detections.append((k, vE, obs.width, sigma))
             return
         if len(candidates) > 1 and candidates[1][1] < 2 * candidates[0][1] + 0.02:
             return  # between two lines: leave it out rather than guess
         line = self.lines.items[candidates[0][0]]
-        line.detections.append((k, vE, obs.width, self._line_sigma(obs)))
+        line.detections.append((k, vE, obs.width, sigma))
         if line.in_graph:
             self.lines.grow(line.index, mE)
-            self._add_marking_factor(line, k, vE, line.detections[-1][3])
+            self._add_marking_factor(line, k, vE, sigma)
             return
         points = np.vstack([transform_points(self.keyframe_poses[j], e)
                             for j, e, _, _ in line.detections])

@@ -197,8 +197,6 @@ def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdRea
     confidence the label's CTC probability (:func:`ctc_label_probability`); nothing
     decoded -> None with the probability that there is nothing (the all-blank path)."""
     label, confs = ctc_greedy(probs, alphabet)
-    if len(probs) == 0:
-        return SlotIdReading(None, 1.0, ())
     conf = ctc_label_probability(probs, label, alphabet)
     if not label:
         return SlotIdReading(None, conf, ())
