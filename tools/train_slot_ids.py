@@ -437,10 +437,9 @@ def evaluate_exported(path: Path, cache: Path) -> dict:
     report: dict = {"model": str(path)}
     for name in ("calib", "test"):
         data = generate(name, cache)
-        x = data["patches"].astype(np.float32)[:, None]
+        patches = data["patches"].astype(np.uint8)
         probs = np.concatenate(
-            [reader._session.run(None, {reader._input: x[k : k + 256]})[0]
-             for k in range(0, len(x), 256)]
+            [reader.probabilities(patches[k : k + 256]) for k in range(0, len(patches), 256)]
         )
         log_probs = np.log(np.clip(probs, 1e-30, 1.0))
         if name == "calib":

@@ -245,11 +245,12 @@ class SlotIdReader:
         """The ID painted in the slot at ``entrance_uv`` (see :func:`crop_id_patch`)."""
         return self.read_patches([crop_id_patch(topview_bgr, entrance_uv, into_slot)])[0]
 
-    def read_patches(self, patches) -> list[SlotIdReading]:
-        """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`, one batch."""
+    def probabilities(self, patches) -> np.ndarray:
+        """(N, 32, 37) per-frame class probabilities of (N, 64, 128) uint8 patches from
+        :func:`crop_id_patch` (calibration temperature applied), one batch."""
         arr = [np.asarray(p) for p in patches]
         if not arr:
-            return []
+            return np.zeros((0, 32, len(ALPHABET) + 1), np.float32)
         for k, p in enumerate(arr):
             if p.dtype != np.uint8 or p.shape != (PATCH_HEIGHT, PATCH_WIDTH):
                 raise PerceptionError(
@@ -257,9 +258,12 @@ class SlotIdReader:
                     f"got {p.dtype} {p.shape}"
                 )
         x = np.stack(arr).astype(np.float32)[:, None]
-        probs = self._session.run(None, {self._input: x})[0]
+        return self._session.run(None, {self._input: x})[0]
+
+    def read_patches(self, patches) -> list[SlotIdReading]:
+        """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`, one batch."""
         out = []
-        for p in probs:
+        for p in self.probabilities(patches):
             r = reading_from_probs(p)
             if r.label is not None and r.confidence < self.min_confidence:
                 r = SlotIdReading(None, r.confidence, r.char_confidences)
