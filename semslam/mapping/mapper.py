@@ -306,11 +306,15 @@ class Mapper:
             self.graph.add_pose(key, compose(pose, tag.vTt))
         cov = 0.5 * (tag.covariance + tag.covariance.T) + np.eye(3) * 1e-8
         self.tag_edges.append((k, tag.tag_id, np.asarray(tag.vTt, dtype=float), cov))
-        self.graph.add_factor(
-            gtsam.BetweenFactorPose2(
-                X(k), key, gtsam.Pose2(*tag.vTt), gtsam.noiseModel.Gaussian.Covariance(cov)
-            )
+        # the ID is trusted, the pose not always: a tag whose PnP took the wrong one of its
+        # two IPPE solutions is off by twice the viewing angle in yaw (rare: the detector
+        # drops ambiguous tags) and falls on the null hypothesis instead of twisting the map
+        noise = (
+            null_hypothesis_noise(cov, self.null)
+            if self.robust
+            else gtsam.noiseModel.Gaussian.Covariance(cov)
         )
+        self.graph.add_factor(gtsam.BetweenFactorPose2(X(k), key, gtsam.Pose2(*tag.vTt), noise))
 
     # ------------------------------------------------------------------ markings
     def _add_marking(self, k: int, obs: MarkingObservation) -> None:

@@ -63,6 +63,13 @@ class TagSettings:
         variant: how the position is obtained (PnP measured the more accurate).
         max_ambiguity: tags whose IPPE ratio (best / other reprojection error) exceeds
             this are not turned into observations.
+        max_flip_probability: nor are tags whose other IPPE solution is right with a
+            larger probability (:func:`~semslam.perception.tag_covariance.flip_probability`):
+            a flipped pose is off by about twice the viewing angle in yaw, which no
+            Gaussian covariance can say without overstating every other tag's. 0.01 was
+            chosen on the calibration sweep (seed 11: 1 of 13 flips kept, NEES within its
+            bounds; 0.02: 2 kept, NEES 3.50); on the evaluation sweep it keeps 77 % of the
+            observations and none of the 6 flips (BENCHMARKS.md).
         range_limit: tags farther from the camera (m) are not turned into observations.
         min_side_px: smaller tags (square root of the image area, px) are not turned into
             observations: below about 18 px the corners move inwards by up to 1 px (the
@@ -78,6 +85,7 @@ class TagSettings:
     sizes: Mapping[int, float] = field(default_factory=dict)
     variant: PositionVariant = PositionVariant.PNP
     max_ambiguity: float = 0.5
+    max_flip_probability: float = 0.01
     range_limit: float = 20.0
     min_side_px: float = 18.0
     min_border_cells: float = 1.0
@@ -177,11 +185,12 @@ def to_observations(
 
 
 def usable(est: TagEstimate, settings: TagSettings = TagSettings()) -> bool:
-    """Does ``est`` make an observation: unambiguous (``max_ambiguity``), near enough
-    (``range_limit``), large enough (``min_side_px``) and clear of the image border
-    (``min_border_cells``)?"""
+    """Does ``est`` make an observation: unambiguous (``max_ambiguity``,
+    ``max_flip_probability``), near enough (``range_limit``), large enough
+    (``min_side_px``) and clear of the image border (``min_border_cells``)?"""
     det = est.detection
     return (est.pose.ambiguity <= settings.max_ambiguity
+            and est.flip_probability <= settings.max_flip_probability
             and est.range <= settings.range_limit
             and est.side_px >= settings.min_side_px
             and det.border_distance >= settings.min_border_cells * det.cell_px)
