@@ -27,8 +27,7 @@ of those between 0.4 and 0.5, more of the small ones). A flip turns the yaw by a
 twice the viewing angle, which no Gaussian can hold without overstating every other
 tag's yaw: moment-matching it in (``+ w d d^T``, as before) gave a mean NEES of 2.33
 with the yaw alone at 0.30 on the evaluation sweep. So tags with ``w`` above
-``TagSettings.max_flip_probability`` are not turned into observations, and a mapper
-should still give tag factors a null hypothesis.
+``TagSettings.max_flip_probability`` are not turned into observations.
 
 The constants below were fitted by maximum likelihood on 3,000 simulated views of a
 0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate``), keeping the
