@@ -19,6 +19,21 @@ def run_semslam(args: list[str], env: dict[str, str] | None = None) -> str:
     return proc.stdout
 
 
+def true_slot(found, truths, radius: float = 1.0):
+    """The slot of ``truths`` (the exact observations of the same frame) that the detected
+    slot ``found`` is: the one with the smallest mean corner distance, if under ``radius``
+    (m); None otherwise."""
+    import numpy as np
+
+    corners = np.asarray(found.vCorners, dtype=float)
+    best, best_d = None, radius
+    for truth in truths:
+        d = float(np.linalg.norm(corners - np.asarray(truth.vCorners), axis=1).mean())
+        if d < best_d:
+            best, best_d = truth, d
+    return best
+
+
 def report(markdown: str, result: dict, json_path: Path | None = None) -> None:
     """Print a Markdown table and the JSON behind it; also write the JSON if asked."""
     print(markdown)

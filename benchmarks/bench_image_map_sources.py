@@ -14,12 +14,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-import numpy as np
+from _common import true_slot
 
 from semslam.config import load_config
 from semslam.evaluation.map_metrics import evaluate_map
 from semslam.io import Drive
 from semslam.mapping.mapper import Mapper
+from semslam.perception.topview_perception import DEFAULT_CORNER_SIGMA
 from semslam.pipeline.perceive import perceive_drive
 from semslam.types import FrameObservations
 
@@ -28,23 +29,11 @@ def _true_labels(found: FrameObservations, exact: FrameObservations) -> tuple:
     """The detected slots with the label of the true slot they match (confidence 0.99)."""
     out = []
     for slot in found.slots:
-        best = None
-        for truth in exact.slots:
-            d = np.linalg.norm(np.asarray(slot.vCorners) - np.asarray(truth.vCorners), axis=1)
-            if d.mean() < 1.0 and (best is None or d.mean() < best[0]):
-                best = (d.mean(), truth.label)
-        if best is not None and best[1]:
-            slot = dataclasses.replace(slot, label=best[1], label_confidence=0.99)
+        truth = true_slot(slot, exact.slots)
+        if truth is not None and truth.label:
+            slot = dataclasses.replace(slot, label=truth.label, label_confidence=0.99)
         out.append(slot)
     return tuple(out)
-
-
-def _scaled(frames: list[FrameObservations], k: float) -> list[FrameObservations]:
-    return [
-        dataclasses.replace(f, slots=tuple(
-            dataclasses.replace(s, corner_sigma=s.corner_sigma * k) for s in f.slots))
-        for f in frames
-    ]
 
 
 def _corners_at(frames: list[FrameObservations], sigma: float) -> list[FrameObservations]:
@@ -93,9 +82,9 @@ def main() -> None:
             dataclasses.replace(n, markings=f.markings) for f, n in pairs
         ],
         "all from the noisy sensor": noisy,
-        "images, slot corner sigma x0.5": _scaled(images, 0.5),
-        "images, slot corner sigma x2": _scaled(images, 2.0),
-        "images, slot corner sigma x3": _scaled(images, 3.0),
+        "images, slot corner sigma x0.5": _corners_at(images, 0.5 * DEFAULT_CORNER_SIGMA),
+        "images, slot corner sigma x2": _corners_at(images, 2.0 * DEFAULT_CORNER_SIGMA),
+        "images, slot corner sigma x3": _corners_at(images, 3.0 * DEFAULT_CORNER_SIGMA),
     }
     for sigma in (0.05, 0.10, 0.20):
         variants[f"images, lines declared at {sigma:.2f} m"] = _lines_at(images, sigma)

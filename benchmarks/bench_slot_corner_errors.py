@@ -16,6 +16,7 @@ import argparse
 import json
 
 import numpy as np
+from _common import true_slot
 
 from semslam.config import load_config
 from semslam.io import Drive
@@ -26,16 +27,10 @@ def corner_errors(detected, exact) -> tuple[list[np.ndarray], list[float]]:
     """Per matched slot: (4, 2) corner errors and the declared sigma."""
     errors, sigmas = [], []
     for frame_found, frame_true in zip(detected, exact, strict=True):
-        truths = [np.asarray(s.vCorners) for s in frame_true.slots]
         for slot in frame_found.slots:
-            corners = np.asarray(slot.vCorners)
-            best = None
-            for truth in truths:
-                d = np.linalg.norm(corners - truth, axis=1).mean()
-                if d < 1.0 and (best is None or d < best[0]):
-                    best = (d, corners - truth)
-            if best is not None:
-                errors.append(best[1])
+            truth = true_slot(slot, frame_true.slots)
+            if truth is not None:
+                errors.append(np.asarray(slot.vCorners) - np.asarray(truth.vCorners))
                 sigmas.append(float(slot.corner_sigma))
     return errors, sigmas
 

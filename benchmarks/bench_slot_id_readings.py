@@ -16,6 +16,7 @@ import json
 import math
 
 import numpy as np
+from _common import true_slot
 
 from semslam.io import Drive
 from semslam.io.images import read_image
@@ -37,15 +38,10 @@ def readings(drive: Drive, step: int) -> list[tuple[str, str, float, float]]:
         for slot, reading in zip(perception.slot_observations(found), found.ids, strict=True):
             if reading.label is None:
                 continue
-            corners = np.asarray(slot.vCorners)
-            best = None
-            for truth in exact[i].slots:
-                d = np.linalg.norm(corners - np.asarray(truth.vCorners), axis=1).mean()
-                if d < 1.0 and (best is None or d < best[0]):
-                    best = (d, truth.label)
-            if best is not None and best[1]:
+            truth = true_slot(slot, exact[i].slots)
+            if truth is not None and truth.label:
                 product = math.prod(reading.char_confidences)
-                out.append((best[1], reading.label, reading.confidence, product))
+                out.append((truth.label, reading.label, reading.confidence, product))
     return out
 
 
