@@ -391,6 +391,35 @@ def evaluate_detections(
     print_metrics("detection evaluation", metrics, json_output)
 
 
+@evaluate_app.command("markings")
+def evaluate_markings(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map to score.")],
+    vector_map: Annotated[
+        Path,
+        typer.Option(metavar="DIR", help="Reference: a vector_map/ folder (point.csv, line.csv), "
+                     "or a map JSON whose markings are the reference."),
+    ],
+    trajectory: Annotated[
+        Path | None,
+        typer.Option(metavar="TRAJ.tum", help="Where the drive went (default: the "
+                     "MAP.trajectory.tum that `semslam map` writes)."),
+    ] = None,
+    radius: Annotated[float, typer.Option(help="Area compared: metres from the drive.")] = 5.0,
+    tolerance: Annotated[float, typer.Option(help="Matched within this, metres.")] = 0.3,
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+) -> None:
+    """Painted lines against a vector map, both ways: end-point distances (median, p95) from
+    the vector map to the map (is everything there?) and back (is what was mapped real?)."""
+    from semslam.pipeline.evaluate import evaluate_markings_files
+    from semslam.reporting import print_metrics
+
+    try:
+        metrics = evaluate_markings_files(map_path, vector_map, trajectory, radius, tolerance)
+    except (SemslamError, OSError) as e:
+        _fail(e)
+    print_metrics("markings evaluation", metrics, json_output)
+
+
 class Grade(StrEnum):
     automotive = "automotive"
     precise = "precise"

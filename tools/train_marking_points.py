@@ -104,6 +104,22 @@ def render_dataset(
     return out
 
 
+def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
+    """The training views of every ``lo:hi`` range in ``--train-worlds`` (comma-separated).
+
+    Range k is sampled with data seed ``--data-seed + 1000 k`` and cached on its own, so
+    adding a range keeps the cache of the earlier ones.
+    """
+    parts = []
+    for k, span in enumerate(args.train_worlds.split(",")):
+        lo, hi = (int(v) for v in span.split(":"))
+        seed = args.data_seed + 1000 * k
+        parts.append(
+            render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache, args.workers)
+        )
+    return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
+
+
 def _labels_at_input(data: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]]:
     """Per view: points at the input scale, directions, shapes, occluded."""
     out, k = [], 0
@@ -337,10 +353,7 @@ def train(args: argparse.Namespace) -> None:
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    lo, hi = (int(v) for v in args.train_worlds.split(":"))
-    data = render_dataset(
-        list(range(lo, hi)), args.per_world, args.data_seed, args.cache, args.workers
-    )
+    data = _training_views(args)
     images = data["images"]
     labels = _labels_at_input(data)
     n = len(images)
@@ -534,7 +547,11 @@ def evaluate(
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--train-worlds", default="1000:2000", help="world seeds lo:hi (hi excluded)")
+    p.add_argument(
+        "--train-worlds",
+        default="1000:2000",
+        help="world seeds lo:hi (hi excluded), comma-separated ranges",
+    )
     p.add_argument("--per-world", type=int, default=8, help="views per training world")
     p.add_argument("--epochs", type=int, default=8)
     p.add_argument("--batch", type=int, default=32)

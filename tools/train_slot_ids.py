@@ -287,10 +287,11 @@ def train(
     lr_max: float = 2e-3,
     warmup: float = 0.03,
     init: Path | None = None,
+    threads: int = 1,
 ):
     import torch
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = build_model()
@@ -494,6 +495,7 @@ def main() -> None:
     ap.add_argument("--lr", type=float, default=2e-3, help="peak learning rate")
     ap.add_argument("--warmup", type=float, default=0.03, help="warm-up share of the run")
     ap.add_argument("--init", type=Path, default=None, help="state dict to continue from")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     ap.add_argument(
         "--train-sets", default="train", help="training sets, e.g. train,train2 (concatenated)"
     )
@@ -532,6 +534,7 @@ def main() -> None:
         lr_max=args.lr,
         warmup=args.warmup,
         init=args.init,
+        threads=args.threads,
     )
     torch.save(model.state_dict(), args.checkpoint or args.cache / "slot_ids.pt")
     data["calib"] = generate("calib", args.cache)

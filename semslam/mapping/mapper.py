@@ -51,7 +51,7 @@ from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import SlotLandmark, SlotLandmarks, SlotPool, mean_corner_distance
 from semslam.mapping.lines import LineLandmarks
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
-from semslam.mapping.markings import merge_marking_observations
+from semslam.mapping.markings import merge_marking_observations, robust_extent
 from semslam.mapping.maxmix import (
     Component,
     MaxMixture,
@@ -761,8 +761,8 @@ class Mapper:
 
     def _export_markings(self) -> tuple[Marking, ...]:
         """Painted lines: the graph's line landmarks with extents re-measured from all their
-        detections at the final keyframe poses (or, without a graph, the detections placed
-        by odometry and merged)."""
+        detections at the final keyframe poses (:func:`robust_extent`), or, without a graph,
+        the detections placed by odometry and merged."""
         poses = self.keyframe_poses
         if not self.use_graph:
             if not self.marking_detections:
@@ -792,9 +792,9 @@ class Mapper:
             spread = float(np.sqrt(np.mean(line.across(points) ** 2)))
             if keyframes < 3 or spread > 2 * self.cfg.marking_sigma:
                 continue  # seen once, or its detections do not lie on one line: not a line
-            s = line.along(points)
-            a = line.foot() + float(s.min()) * line.direction
-            b = line.foot() + float(s.max()) * line.direction
+            s0, s1 = robust_extent(line.along(points))
+            a = line.foot() + s0 * line.direction
+            b = line.foot() + s1 * line.direction
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
             out.append(Marking(a, b, float(np.median([w for _, _, w, _ in detections]))))

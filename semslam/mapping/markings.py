@@ -294,6 +294,16 @@ def _robust_extreme(t_sorted: FloatArray, band: float, from_top: bool) -> float:
     return centre
 
 
+def robust_extent(t: FloatArray, band: float = 0.10) -> tuple[float, float]:
+    """Where a line starts and ends along its direction, from the projections ``t`` (m) of
+    its observations' end points: at each extreme the median of the end points piled
+    within ``band`` m of it, after skipping the outermost 2 % of big sets (step 3 of the
+    module docstring). Every unclipped view ends at the paint's end, so the real ends pile
+    up; a plain minimum / maximum would follow the noisiest or a stray observation."""
+    ts = np.sort(np.asarray(t, dtype=float).ravel())
+    return _robust_extreme(ts, band, from_top=False), _robust_extreme(ts, band, from_top=True)
+
+
 def _principal_axis(pts: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Weighted centre and unit principal direction (x >= 0) of points (M, 2)."""
     total = w.sum()
@@ -388,4 +398,4 @@ def _fit_lines(
     return tuple(out)
 
 
-__all__ = ["merge_marking_observations"]
+__all__ = ["merge_marking_observations", "robust_extent"]

@@ -128,3 +128,95 @@ def evaluate_trajectory_files(
         "map": None if map_path is None else os.fspath(map_path),
         **metrics,
     }
+
+
+def evaluate_markings_files(
+    map_path: str | os.PathLike[str],
+    vector_map: str | os.PathLike[str],
+    trajectory: str | os.PathLike[str] | None = None,
+    radius: float = 5.0,
+    tolerance: float = 0.3,
+) -> dict[str, Any]:
+    """Compare the painted lines of the map file ``map_path`` with a reference vector map,
+    both ways, over the area within ``radius`` m of the drive
+    (:func:`semslam.evaluation.line_map.compare_line_maps`).
+
+    Args:
+        map_path: the built map (semslam map JSON); its markings are compared.
+        vector_map: the reference: a garage-bev ``vector_map/`` folder (point.csv,
+            line.csv) or the recording holding it, or a semslam map JSON whose
+            markings are the reference (``semslam import garage-bev`` writes one).
+        trajectory: where the drive went (TUM, map frame); None: the keyframe trajectory
+            ``semslam map`` writes beside the map (``MAP.trajectory.tum``).
+        radius: the area compared, metres from the trajectory's positions.
+        tolerance: distance under which an end point counts as matched, metres.
+
+    Returns:
+        ``{"map", "vector_map", "trajectory"}`` paths, then the vector map to the map
+        (``median_m``, ``p95_m``, ``matched``: vector-map end points within
+        ``tolerance``, ``vector_points``: those in the area, ``within_share``,
+        ``max_m``), the map to the vector map (``precision_median_m``,
+        ``precision_p95_m``, ``precision_matched``, ``mapped_points``,
+        ``precision_within_share``, ``precision_max_m``), the segment counts in the
+        area and ``radius_m``, ``tolerance_m``; None where a direction has no point.
+
+    Raises:
+        ConfigError: ``radius`` or ``tolerance`` is not a positive number, or there
+            is no trajectory.
+        MapError, FormatError, DriveError: a file is missing or broken (one line naming
+            the file and line).
+    """
+    from semslam.evaluation.line_map import compare_line_maps
+    from semslam.io import load_map, read_tum
+    from semslam.io.garage_bev import read_vector_map
+
+    for name, value in (("radius", radius), ("tolerance", tolerance)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
+    map_path = Path(map_path)
+    if trajectory is None:
+        trajectory = map_path.with_name(map_path.stem + ".trajectory.tum")
+        if not trajectory.is_file():
+            raise ConfigError(
+                f"{os.fspath(trajectory)}: missing (the area compared is the drive's: "
+                "pass --trajectory TRAJ.tum)"
+            )
+    mapped = _marking_segments(load_map(map_path))
+    reference_path = Path(vector_map)
+    if reference_path.is_file():
+        reference = _marking_segments(load_map(reference_path))
+    else:
+        reference = read_vector_map(reference_path)
+    _, poses = read_tum(trajectory)
+    c = compare_line_maps(mapped, reference, poses[:, :2], radius=radius, tolerance=tolerance)
+    ref, got = c.reference_to_map, c.map_to_reference
+
+    def plain(x: float) -> float | None:
+        return float(x) if math.isfinite(x) else None
+
+    return {
+        "map": os.fspath(map_path),
+        "vector_map": os.fspath(vector_map),
+        "trajectory": os.fspath(trajectory),
+        "median_m": plain(ref.median_m),
+        "p95_m": plain(ref.p95_m),
+        "matched": int(round(ref.within_share * ref.points)) if ref.points else 0,
+        "vector_points": ref.points,
+        "within_share": plain(ref.within_share),
+        "max_m": plain(ref.max_m),
+        "precision_median_m": plain(got.median_m),
+        "precision_p95_m": plain(got.p95_m),
+        "precision_matched": int(round(got.within_share * got.points)) if got.points else 0,
+        "mapped_points": got.points,
+        "precision_within_share": plain(got.within_share),
+        "precision_max_m": plain(got.max_m),
+        "vector_segments": c.reference_segments,
+        "mapped_segments": c.mapped_segments,
+        "radius_m": c.radius_m,
+        "tolerance_m": c.tolerance_m,
+    }
+
+
+def _marking_segments(semantic_map) -> np.ndarray:
+    """(M, 2, 2) end points of a map's painted lines."""
+    return np.array([[m.a, m.b] for m in semantic_map.markings], dtype=float).reshape(-1, 2, 2)

@@ -283,3 +283,14 @@ def test_observations_of_a_drive_merge_into_the_world_markings(small_drive, kind
                 found = found or (abs(s0 - t0) < 0.1 and abs(s1 - t1) < 0.1)
             assert found, f"world marking {m.a} -> {m.b}, seen {t0:.2f}..{t1:.2f} m: no line"
     assert checked > 30
+
+
+def test_robust_extent_follows_the_pile_of_ends_not_a_stray_one() -> None:
+    rng = np.random.default_rng(3)
+    # clipped views end anywhere inside; every unclipped one ends at 0 or 4 m (noise 3 cm)
+    inner = rng.uniform(0.5, 3.5, 40)
+    ends = np.concatenate([rng.normal(0.0, NOISE, 20), rng.normal(4.0, NOISE, 20)])
+    t = np.concatenate([inner, ends, [-0.9]])  # and one stray observation 0.9 m beyond
+    t0, t1 = markings.robust_extent(t)
+    assert abs(t0) < 0.03 and abs(t1 - 4.0) < 0.03
+    assert t0 > t.min() + 0.8  # a plain minimum would follow the stray end
