@@ -145,6 +145,14 @@ def test_refine_depth_snaps_a_slanted_slot_to_its_painted_separators():
     assert abs(math.degrees(math.atan2(got[1], got[0]) - true)) < 0.5
     np.testing.assert_allclose(out.uv_corners[:2], slot.uv_corners[:2])
     assert abs(np.hypot(*got) - 300.0) < 1e-9
-    # on bare floor the slot is left alone
+    # on bare floor the separators cannot be measured
     blank = np.full((600, 600, 3), 90, np.uint8)
-    assert refine_depth(blank, slot, search_deg=20.0) is slot
+    assert refine_depth(blank, slot, search_deg=20.0) is None
+    # nor when the slot lies across the image border: the entrance 30 px (0.5 m) from the
+    # bottom edge, the separators running out of the image
+    low = np.full((600, 600, 3), 90, np.uint8)
+    low[270:] = image[:330]
+    slot_at = DetectedSlot(
+        0, 1, np.array([el, er, er + g, el + g]) + [0.0, 270.0], SlotKind.SLANTED, 50.0, 0.9
+    )
+    assert refine_depth(low, slot_at, search_deg=20.0) is None
