@@ -5,7 +5,7 @@ Stages, each re-runnable:
 1. render: labelled top views from ``sample_topviews`` (training world seeds only), resized
    to the network input (INTER_AREA, as at run time), cached as ``.npz`` shards in
    ``--cache`` keyed by the sampling arguments (a second run reuses them);
-2. train: a small fully convolutional net on one CPU thread, heavy augmentation (colour,
+2. train: a small fully convolutional net on ``--threads`` CPU threads, heavy augmentation (colour,
    yellow paint, blur, noise, JPEG, rotations by k*90 deg + small angles, mirror),
    fixed seeds;
 3. export: ONNX (opset 17, input ``(1, S, S, 3)`` uint8 BGR, output ``(1, 6, G, G)``
