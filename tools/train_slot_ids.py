@@ -506,7 +506,8 @@ def main() -> None:
         "--stage",
         choices=("data", "all", "calibrate", "evaluate"),
         default="all",
-        help="data: crops only; evaluate: the exported --out model on the calibration and "
+        help="data: crops only; calibrate: no training, calibrate, test and export the "
+        "--init weights; evaluate: the exported --out model on the calibration and "
         "test crops (an extra temperature fitted on top of the baked one is reported)",
     )
     ap.add_argument("--sets", default="train,calib,test")
@@ -531,16 +532,18 @@ def main() -> None:
         return
     import torch
 
-    parts = [generate(name, args.cache) for name in args.train_sets.split(",")]
-    data = {"train": {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}}
+    data = {}
     if args.stage == "calibrate":  # no training: calibrate, test and export --init
         if args.init is None:
             raise SystemExit("--stage calibrate needs --init (trained weights)")
         model = build_model()
         model.load_state_dict(torch.load(args.init, map_location="cpu"))
         model.eval()
-        train_s, done = 0.0, 0
+        train_s, done, n_train = 0.0, 0, 0
     else:
+        parts = [generate(name, args.cache) for name in args.train_sets.split(",")]
+        data["train"] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        n_train = len(data["train"]["labels"])
         model, train_s, done = train(
             data["train"],
             args.steps,
@@ -560,7 +563,7 @@ def main() -> None:
     report = {
         "train_seconds": train_s,
         "train_steps": done,
-        "train_crops": len(data["train"]["labels"]),
+        "train_crops": n_train,
         "temperature": T,
         "calib": evaluate(cal_logits, data["calib"], T),
         "calib_T1": evaluate(cal_logits, data["calib"], 1.0),
