@@ -27,6 +27,7 @@ import os
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -36,7 +37,14 @@ from scipy import stats
 
 from semslam.config import SimulationConfig
 from semslam.geometry import inverse_transform_points, wrap_angle
-from semslam.perception.tag_covariance import TagNoiseModel, side_px
+from semslam.perception.tag_covariance import (
+    TagNoiseModel,
+    camera_covariance,
+    min_side_px,
+    side_px,
+    vehicle_covariance,
+    vehicle_pose_2d,
+)
 from semslam.perception.tag_detection import (
     REFERENCE_SETTINGS,
     DetectorSettings,
@@ -390,8 +398,8 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
     (range, across the line of sight, rotation about the tag's axes), viewing angles about
     the tag's x and y axes, whether the best IPPE solution was the wrong (flipped) one,
     the ambiguity ratio, and whether the view becomes an observation."""
-    keys = ("s", "rho", "e_rho", "e_perp", "e_rot", "th", "flip", "ambiguity", "usable",
-            "clipped")
+    keys = ("s", "s_min", "rho", "e_rho", "e_perp", "e_rot", "th", "flip", "ambiguity",
+            "usable", "clipped")
     out: dict[str, list] = {k: [] for k in keys}
     for r in rows:
         if r["detection"] is None:
@@ -411,6 +419,7 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
         e_other = (abs(wrap_angle(math.atan2(-pose.other.R[0, 2], pose.other.R[2, 2])
                                   - true_heading)) if pose.other else np.inf)
         out["s"].append(side_px(r["detection"].corners))
+        out["s_min"].append(min_side_px(r["detection"].corners))
         out["rho"].append(rho)
         out["e_rho"].append(rho - np.linalg.norm(pt))
         out["e_perp"].append((ut @ b1, ut @ b2))
@@ -419,8 +428,10 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
         out["flip"].append(e_best > e_other and e_best > math.radians(5))
         out["ambiguity"].append(pose.ambiguity)
         out["clipped"].append(r["detection"].clipped > TagNoiseModel().clipped_share)
-        est = estimate_tag(r["detection"], CAM, TagSettings(variant=variant))
-        out["usable"].append(est is not None and usable(est, TagSettings(variant=variant)))
+        # usable but for the flip probability, which the calibration fits itself
+        settings = TagSettings(variant=variant, max_flip_probability=1.0)
+        est = estimate_tag(r["detection"], CAM, settings)
+        out["usable"].append(est is not None and usable(est, settings))
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -456,43 +467,100 @@ def _fit_flip(ambiguity: np.ndarray, size: np.ndarray, flip: np.ndarray) -> np.n
 
 
 def calibrate(rows: list[dict]) -> dict:
-    """Fit the covariance constants by maximum likelihood (see tag_covariance.py) on the
-    views that become observations (``usable`` with the default settings); the bearing
-    on its horizontal part, the one a 2D observation uses."""
+    """Fit the constants by maximum likelihood (see tag_covariance.py): the flip model on
+    the views usable but for their flip probability, the covariance on those of them that
+    the fitted flip model keeps (at most ``max_flip_probability``): the views that become
+    observations; each term of the covariance on its own error (on the views not
+    overexposed; the bearing on its horizontal part, the one a 2D observation uses), then
+    the terms of the 2D observation together on its vehicle-frame errors
+    (:func:`_refine_on_vehicle_errors`). ``model`` holds the constants for
+    :class:`TagNoiseModel`."""
     f = float(CAM.K[0, 0])
     out: dict = {}
     x = _calibration_features(rows, PositionVariant.TIEV)
-    keep = x["usable"]
+    keep = x["usable"] & ~x["clipped"]
     s, perp = x["s"][keep], x["e_perp"][keep]
     q = _fit(lambda q: np.hypot(_g(q, s) / f, q[2]), perp[:, 0], [0.03, 2.0, 1e-5])
     out["tiev_bearing_floor_px, knee_px2, floor_rad"] = [float(f"{v:.4g}") for v in q]
     x = _calibration_features(rows, PositionVariant.PNP)
     x = {k: v[x["usable"]] for k, v in x.items()}
-    s, rho, rot, th, flip = x["s"], x["rho"], x["e_rot"], x["th"], x["flip"]
-    ok = ~flip
-    q_perp = _fit(lambda q: np.hypot(_g(q, s) / f, q[2]), x["e_perp"][:, 0],
-                  [0.03, 2.0, 1e-5])
+    q_flip = _fit_flip(x["ambiguity"], x["s"], x["flip"])
+    flips_all = int(x["flip"].sum())
+    z = (q_flip[0] + q_flip[1] * np.log(np.maximum(x["ambiguity"], 1e-6))
+         + q_flip[2] * np.log(x["s"]))
+    kept = 1 / (1 + np.exp(-np.clip(z, -50, 50))) <= TagSettings().max_flip_probability
+    x = {k: v[kept] for k, v in x.items()}
     clip = x["clipped"]
-    sc, rc = s[~clip], rho[~clip]
-    q_rho = _fit(lambda q: rc * np.hypot(_g(q, sc) / sc, q[2]), x["e_rho"][~clip],
-                 [0.05, 2.0, 1e-3])
-    sk, rk = s[clip], rho[clip]
-    q_clip = _fit(lambda q: rk * np.hypot(_g(q_rho, sk) / sk, np.hypot(q_rho[2], q[0])),
-                  x["e_rho"][clip], [0.01])
+    # the base model on the views that are not overexposed ...
+    b = {k: v[~clip] for k, v in x.items()}
+    s, rho, rot, th, ok = b["s"], b["rho"], b["e_rot"], b["th"], ~b["flip"]
+    q_perp = _fit(lambda q: np.hypot(_g(q, s) / f, q[2]), b["e_perp"][:, 0],
+                  [0.03, 2.0, 1e-5])
+    q_rho = _fit(lambda q: rho * np.hypot(_g(q, s) / s, q[2]), b["e_rho"], [0.05, 2.0, 1e-3])
     so, tho = s[ok], th[ok, 1]
     q_tilt = _fit(lambda q: _g(q, so) / (so * np.sqrt((q[2] * so / f) ** 2 + np.sin(tho) ** 2)),
                   rot[ok, 1], [0.1, 2.0, 1.0])
     q_roll = _fit(lambda q: _g(q, so) / so, rot[ok, 2], [0.05, 2.0])
-    q_flip = _fit_flip(x["ambiguity"], s, flip)
+    fitted = {
+        ("range_floor_px", "range_knee_px2", "range_rel_floor"): q_rho,
+        ("bearing_floor_px", "bearing_knee_px2", "bearing_floor_rad"): q_perp,
+        ("tiev_bearing_floor_px", "tiev_bearing_knee_px2", "tiev_bearing_floor_rad"): q,
+        ("tilt_floor_px", "tilt_knee_px2", "tilt_perspective"): q_tilt,
+        ("roll_floor_px", "roll_knee_px2"): q_roll,
+        ("flip_logit_offset", "flip_logit_ambiguity", "flip_logit_size"): q_flip}
+    first = replace(TagNoiseModel(), **{k: float(v) for names, values in fitted.items()
+                                        for k, v in zip(names, values, strict=True)})
+    model = _refine_on_vehicle_errors(rows, first)
     out.update({
-        "samples": int(len(s)), "flips": int(flip.sum()),
-        "pnp_bearing_floor_px, knee_px2, floor_rad": [float(f"{v:.4g}") for v in q_perp],
-        "range_floor_px, knee_px2, rel_floor": [float(f"{v:.4g}") for v in q_rho],
-        "clipped_views, clipped_range_rel": [int(clip.sum()), round(float(q_clip[0]), 4)],
-        "tilt_floor_px, knee_px2, perspective": [round(float(v), 4) for v in q_tilt],
-        "roll_floor_px, knee_px2": [round(float(v), 4) for v in q_roll],
-        "flip_logit_offset, ambiguity, size": [round(float(v), 4) for v in q_flip]})
+        "views_usable_but_for_flips": int(len(kept)), "flips_among_them": flips_all,
+        "samples": int(kept.sum()), "overexposed": int(clip.sum()),
+        "flips": int(x["flip"].sum()),
+        "model": {k: float(f"{v:.4g}") for k, v in vars(model).items()}})
     return out
+
+
+VEHICLE_FIT = ("range_floor_px", "range_knee_px2", "range_rel_floor", "bearing_floor_px",
+               "bearing_knee_px2", "bearing_floor_rad", "tilt_floor_px", "tilt_knee_px2",
+               "tilt_perspective", "clipped_knee_px", "clipped_floor")
+
+
+def _refine_on_vehicle_errors(rows: list[dict], first: TagNoiseModel) -> TagNoiseModel:
+    """The constants that shape the 2D observation (:data:`VEHICLE_FIT`), refitted by
+    maximum likelihood of the observations' (x, y, yaw) errors in the vehicle frame, the
+    quantity the NEES checks (its terms coupled through the pose, overexposed views
+    included), from the per-term fits ``first`` (the overexposure factor from 30 px, 0.5)."""
+    from scipy.optimize import minimize
+
+    start = replace(first, clipped_knee_px=30.0, clipped_floor=0.5)
+    settings = TagSettings(noise=start)
+    views = []
+    for r in rows:
+        if r["detection"] is None:
+            continue
+        est = estimate_tag(r["detection"], CAM, settings)
+        if est is None or not usable(est, settings):
+            continue
+        vTt, _ = vehicle_pose_2d(est.pose.position, est.pose.rotation, CAM.T_vehicle_camera)
+        e = vTt - r["vTt_true"]
+        e[2] = wrap_angle(e[2])
+        views.append((est, e, min_side_px(est.corners)))
+    f = float(CAM.K[0, 0])
+
+    def nll(log_q: np.ndarray) -> float:
+        m = replace(start, **dict(zip(VEHICLE_FIT, np.exp(log_q), strict=True)))
+        total = 0.0
+        for est, e, s_min in views:
+            c6 = camera_covariance(est.pose, est.side_px, f, m, est.detection.clipped, s_min)
+            C = vehicle_covariance(est.pose.rotation, c6, CAM.T_vehicle_camera)
+            total += float(e @ np.linalg.solve(C, e)) + float(np.linalg.slogdet(C)[1])
+        return total
+
+    x0 = np.log([max(getattr(start, k), 1e-6) for k in VEHICLE_FIT])
+    simplex = np.vstack([x0, x0 + 0.3 * np.eye(len(x0))])  # every constant moved by 35 %
+    res = minimize(nll, x0, method="Nelder-Mead",
+                   options={"maxiter": 3000, "maxfev": 3000, "xatol": 1e-4, "fatol": 1e-3,
+                            "initial_simplex": simplex})
+    return replace(start, **dict(zip(VEHICLE_FIT, np.exp(res.x), strict=True)))
 
 
 # --------------------------------------------------------------------------- report
@@ -560,6 +628,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=12)
     parser.add_argument("--calibrate", action="store_true",
                         help="also fit the covariance constants on a sweep with seed 11")
+    parser.add_argument("--calibrate-only", action="store_true",
+                        help="fit the constants (seed 11 sweep), print them and stop")
     parser.add_argument("--plot", type=Path, default=Path("docs/tag_detection_rate.png"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--speed-only", action="store_true",
@@ -567,9 +637,11 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     result: dict = {}
-    if args.calibrate:
+    if args.calibrate or args.calibrate_only:
         result["calibration"] = calibrate(sweep(3000, 11))
         print(json.dumps(result["calibration"], indent=2), file=sys.stderr)
+        if args.calibrate_only:
+            return
     times, cpu_times, result["nees_drive"] = drive_frames(args.frames, 1)
     result["speed"] = {"frames": len(times), "median_ms": round(statistics.median(times), 2),
                        "p90_ms": round(float(np.percentile(times, 90)), 2),

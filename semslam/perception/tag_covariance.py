@@ -8,8 +8,7 @@ length ``f`` (px):
 
 - range along the line of sight: ``sigma_rho^2 = (rho / s * g_range(s))^2 + (e_rho rho)^2``
   (``e_rho``: a relative floor, what a tag printed 0.3 % too small or a focal length
-  0.3 % off would cause), plus ``(e_clip rho)^2`` for an overexposed tag (its clipped
-  white bleeds into the black square, which looks smaller: the range comes out long);
+  0.3 % off would cause);
 - across it (each of the two directions):
   ``sigma_perp^2 = (rho / f * g_bearing(s))^2 + (e_bearing rho)^2`` (``e_bearing``: an
   angular floor, rad, what a principal point off by a fraction of a pixel causes);
@@ -18,6 +17,14 @@ length ``f`` (px):
   angle about that axis (foreshortening informs a turned tag, only perspective a
   head-on one, so head-on and small tags get uncertain normals);
 - turning in its own plane: ``g_roll(s) / s``.
+
+An overexposed tag (clipped white around it) has every pixel error multiplied by
+``sqrt(1 + c_clip^2 + (k_clip / s_min)^2)``, ``s_min`` its shortest side in the image
+(px): the
+corners come from the middle of the border ring
+(:mod:`~semslam.perception.tag_refinement`), which the clipped white cannot move, but
+where the ring or the white data cells beside it are only a pixel or two wide (a small
+or steeply turned tag) the clipped side of the ring is not the mirror of the other.
 
 The covariance is that of the chosen IPPE solution (:mod:`semslam.perception.tag_pose`)
 *given that it is the right one*. The other solution is right with probability
@@ -33,7 +40,7 @@ The constants below were fitted by maximum likelihood on 3,000 simulated views o
 0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate``), keeping the
 views that become observations (:func:`semslam.perception.tags.usable`). The
 simulator's image is cleaner than a real camera's (effective corner errors of 0.03-0.2
-px) and its intrinsics are exact: for a real camera, scale every term by ``scale`` and
+px) and its intrinsics are exact: for a real camera, scale every pixel error by ``scale`` and
 set the floors (``range_rel_floor``, ``bearing_floor_rad``) from its calibration and
 the tags' print tolerance.
 
@@ -59,25 +66,26 @@ from semslam.perception.tag_pose import PositionVariant, TagPose
 class TagNoiseModel:
     """The covariance model's constants (pixel errors in px; see the module docstring)."""
 
-    range_floor_px: float = 0.0443
-    range_knee_px2: float = 2.026
+    range_floor_px: float = 0.01611
+    range_knee_px2: float = 0.658
     range_rel_floor: float = 0.0
-    clipped_range_rel: float = 0.0056
+    clipped_knee_px: float = 46.09
+    clipped_floor: float = 0.64
     clipped_share: float = 0.1
-    bearing_floor_px: float = 0.0260
-    bearing_knee_px2: float = 1.741
-    bearing_floor_rad: float = 5e-6
-    tiev_bearing_floor_px: float = 0.0297
-    tiev_bearing_knee_px2: float = 1.802
-    tiev_bearing_floor_rad: float = 2e-6
-    tilt_floor_px: float = 0.0597
-    tilt_knee_px2: float = 2.954
-    tilt_perspective: float = 0.503
-    roll_floor_px: float = 0.0578
-    roll_knee_px2: float = 1.326
-    flip_logit_offset: float = 6.056
-    flip_logit_ambiguity: float = 1.792
-    flip_logit_size: float = -2.302
+    bearing_floor_px: float = 0.01087
+    bearing_knee_px2: float = 0.3501
+    bearing_floor_rad: float = 0.0
+    tiev_bearing_floor_px: float = 0.01149
+    tiev_bearing_knee_px2: float = 0.7051
+    tiev_bearing_floor_rad: float = 0.0
+    tilt_floor_px: float = 0.02411
+    tilt_knee_px2: float = 0.8862
+    tilt_perspective: float = 0.4397
+    roll_floor_px: float = 0.01794
+    roll_knee_px2: float = 2.189
+    flip_logit_offset: float = 4.021
+    flip_logit_ambiguity: float = 1.796
+    flip_logit_size: float = -1.691
     scale: float = 1.0
 
 
@@ -88,6 +96,12 @@ def _g(floor: float, knee: float, s: float) -> float:
 def side_px(corners: ArrayLike) -> float:
     """Square root of the area (px^2) of the (4, 2) corner quad: the tag's size in pixels."""
     return math.sqrt(abs(cv2.contourArea(np.asarray(corners, dtype=np.float32).reshape(4, 2))))
+
+
+def min_side_px(corners: ArrayLike) -> float:
+    """The shortest side of the (4, 2) corner quad, px."""
+    c = np.asarray(corners, dtype=float).reshape(4, 2)
+    return float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).min())
 
 
 def flip_probability(pose: TagPose, s: float, model: TagNoiseModel = TagNoiseModel()) -> float:
@@ -102,7 +116,7 @@ def flip_probability(pose: TagPose, s: float, model: TagNoiseModel = TagNoiseMod
 
 def camera_covariance(
     pose: TagPose, s: float, f: float, model: TagNoiseModel = TagNoiseModel(),
-    clipped: float = 0.0,
+    clipped: float = 0.0, min_side: float | None = None,
 ) -> FloatArray:
     """(6, 6) covariance of ``(position, rotation)`` in the camera frame (m, rad).
 
@@ -112,24 +126,27 @@ def camera_covariance(
         f: focal length, px.
         model: the constants.
         clipped: share of clipped (overexposed) pixels around the tag; above
-            ``model.clipped_share`` the range gets ``clipped_range_rel`` more spread.
+            ``model.clipped_share`` every pixel error grows by
+            ``sqrt(1 + clipped_floor^2 + (clipped_knee_px / min_side)^2)``.
+        min_side: the tag's shortest side in the image, px (``s`` if None).
     """
     p = np.asarray(pose.position, dtype=float)
     R = np.asarray(pose.rotation, dtype=float)
     rho = float(np.linalg.norm(p))
     u = p / rho
     k = model.scale
+    if clipped > model.clipped_share:
+        knee = model.clipped_knee_px / (s if min_side is None else min_side)
+        k *= math.sqrt(1.0 + model.clipped_floor**2 + knee**2)
     if pose.variant is PositionVariant.TIEV:
         g_perp = _g(model.tiev_bearing_floor_px, model.tiev_bearing_knee_px2, s)
         floor_perp = model.tiev_bearing_floor_rad
     else:
         g_perp = _g(model.bearing_floor_px, model.bearing_knee_px2, s)
         floor_perp = model.bearing_floor_rad
-    rel_floor = math.hypot(model.range_rel_floor,
-                           model.clipped_range_rel if clipped > model.clipped_share else 0.0)
-    s_rho = k * rho * math.hypot(_g(model.range_floor_px, model.range_knee_px2, s) / s,
-                                 rel_floor)
-    s_perp = k * rho * math.hypot(g_perp / f, floor_perp)
+    s_rho = rho * math.hypot(k * _g(model.range_floor_px, model.range_knee_px2, s) / s,
+                             model.range_rel_floor)
+    s_perp = rho * math.hypot(k * g_perp / f, floor_perp)
     cov = np.zeros((6, 6))
     uu = np.outer(u, u)
     cov[:3, :3] = s_rho**2 * uu + s_perp**2 * (np.eye(3) - uu)
@@ -182,6 +199,7 @@ __all__ = [
     "TagNoiseModel",
     "camera_covariance",
     "flip_probability",
+    "min_side_px",
     "side_px",
     "vehicle_covariance",
     "vehicle_pose_2d",

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
+from semslam.perception.tag_refinement import refine_corners
 from semslam.types import TagFamily
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,8 @@ log = logging.getLogger(__name__)
 APRILTAG_PIXEL_OFFSET = 0.5  # AprilTag pixel coordinate minus OpenCV pixel coordinate
 CELLS = {TagFamily.TAG36H11: 8, TagFamily.TAG25H9: 7, TagFamily.TAG16H5: 6,
          TagFamily.TAG_STANDARD41H12: 5}  # cells across the square the corners outline
+RING_FAMILIES = frozenset({TagFamily.TAG36H11, TagFamily.TAG25H9, TagFamily.TAG16H5})
+"""Families whose black square's outer cells are a black ring around the data cells."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,9 @@ class DetectorSettings:
             drive nor on the real photos, measured up to 40).
         max_hamming: largest number of corrected bits accepted (tag36h11: 0-2).
         min_decision_margin: weakest decoding accepted (the library's decision margin).
+        ring_refinement: rebuild the corners from the middle of the black border ring
+            (:mod:`~semslam.perception.tag_refinement`), where an overexposed tag's
+            clipped white cannot move them (not a C library setting).
     """
 
     quad_decimate: float = 2.0
@@ -62,10 +68,12 @@ class DetectorSettings:
     min_white_black_diff: int = 30
     max_hamming: int = 1
     min_decision_margin: float = 0.0
+    ring_refinement: bool = True
 
 
 REFERENCE_SETTINGS = DetectorSettings(
-    quad_decimate=1.0, refine_edges=False, min_white_black_diff=5, max_hamming=2
+    quad_decimate=1.0, refine_edges=False, min_white_black_diff=5, max_hamming=2,
+    ring_refinement=False,
 )
 """The settings of the AprilTag regression images' reference detections."""
 
@@ -239,6 +247,8 @@ def detect_tags(
         if d.hamming > settings.max_hamming or d.decision_margin < settings.min_decision_margin:
             continue
         corners = np.asarray(d.corners, dtype=float) - APRILTAG_PIXEL_OFFSET
+        if settings.ring_refinement and fam in RING_FAMILIES:
+            corners = refine_corners(gray, corners, CELLS[fam])
         out.append(
             TagDetection(fam, int(d.tag_id), corners, quad_centre(corners), int(d.hamming),
                          float(d.decision_margin), (gray.shape[1], gray.shape[0]),
@@ -273,6 +283,7 @@ __all__ = [
     "APRILTAG_PIXEL_OFFSET",
     "CELLS",
     "REFERENCE_SETTINGS",
+    "RING_FAMILIES",
     "DetectorSettings",
     "PerceptionError",
     "TagDetection",

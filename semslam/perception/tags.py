@@ -33,6 +33,7 @@ from semslam.perception.tag_covariance import (
     TagNoiseModel,
     camera_covariance,
     flip_probability,
+    min_side_px,
     side_px,
     vehicle_covariance,
     vehicle_pose_2d,
@@ -146,7 +147,8 @@ def estimate_tag(
     f = math.sqrt(float(camera.K[0, 0]) * float(camera.K[1, 1]))
     return TagEstimate(detection, size, corners, pose, s,
                        flip_probability(pose, s, settings.noise),
-                       camera_covariance(pose, s, f, settings.noise, detection.clipped))
+                       camera_covariance(pose, s, f, settings.noise, detection.clipped,
+                                         min_side_px(corners)))
 
 
 def estimate_tags(
