@@ -20,8 +20,7 @@ length ``f`` (px):
 
 An overexposed tag (clipped white around it) has every pixel error multiplied by
 ``sqrt(1 + c_clip^2 + (k_clip / s_min)^2)``, ``s_min`` its shortest side in the image
-(px): the
-corners come from the middle of the border ring
+(px): the corners come from the middle of the border ring
 (:mod:`~semslam.perception.tag_refinement`), which the clipped white cannot move, but
 where the ring or the white data cells beside it are only a pixel or two wide (a small
 or steeply turned tag) the clipped side of the ring is not the mirror of the other.
@@ -37,12 +36,14 @@ with the yaw alone at 0.30 on the evaluation sweep. So tags with ``w`` above
 ``TagSettings.max_flip_probability`` are not turned into observations.
 
 The constants below were fitted by maximum likelihood on 3,000 simulated views of a
-0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate``), keeping the
-views that become observations (:func:`semslam.perception.tags.usable`). The
-simulator's image is cleaner than a real camera's (effective corner errors of 0.03-0.2
-px) and its intrinsics are exact: for a real camera, scale every pixel error by ``scale`` and
-set the floors (``range_rel_floor``, ``bearing_floor_rad``) from its calibration and
-the tags' print tolerance.
+0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate-only``), keeping
+the views that become observations (:func:`semslam.perception.tags.usable`): each term
+on its own error first, then the terms of the 2D observation together on its
+vehicle-frame (x, y, yaw) errors. The simulator's image is cleaner than a real camera's
+(corner errors of 0.03-0.13 px after the ring refinement) and its intrinsics are exact:
+for a real camera, scale every pixel error by ``scale`` and set the floors
+(``range_rel_floor``, ``bearing_floor_rad``) from its calibration and the tags' print
+tolerance.
 
 Covariances are over ``(x, y, z, rx, ry, rz)`` of the tag in the camera frame: the
 position error (m) and the rotation error ``R_true = exp([r]x) R`` (rad, camera axes).

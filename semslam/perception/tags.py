@@ -68,9 +68,10 @@ class TagSettings:
             larger probability (:func:`~semslam.perception.tag_covariance.flip_probability`):
             a flipped pose is off by about twice the viewing angle in yaw, which no
             Gaussian covariance can say without overstating every other tag's. 0.01 was
-            chosen on the calibration sweep (seed 11: 1 of 13 flips kept, NEES within its
-            bounds; 0.02: 2 kept, NEES 3.50); on the evaluation sweep it keeps 77 % of the
-            observations and none of the 6 flips (BENCHMARKS.md).
+            chosen on the calibration sweep with AprilTag's corners (seed 11: 1 of 13
+            flips kept); with the ring-refined corners and the refitted flip model it keeps
+            1,267 of its 1,694 usable views and 2 of their 15 flips (0.005: 1,147 and
+            none, which made the NEES no better; BENCHMARKS.md).
         range_limit: tags farther from the camera (m) are not turned into observations.
         min_side_px: smaller tags (square root of the image area, px) are not turned into
             observations: below about 18 px the corners move inwards by up to 1 px (the
