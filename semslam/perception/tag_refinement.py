@@ -21,9 +21,12 @@ that middle and rebuilds the square from it:
    blurred ring keeps the midpoint where it is (a centroid of darkness would not: a
    narrow white data cell never reaches full white and drags it inwards, 0.1 px at 4 px
    per cell);
-4. each side moved to the mean of its midpoints (a side without a white data cell takes
-   the mean offset of the others), the outer square rebuilt half a cell outside the
-   ring's middle, mapped back through ``H``.
+4. per side a line through its midpoints: their mean offset, and their slope too where
+   they span two cells and a cell is 8 px or more (smaller tags keep AprilTag's edge
+   directions, which the few midpoints there would only make noisier); a side without
+   a white data cell takes the mean offset of the others;
+5. the four lines' corners (the ring's middle square), and the outer square from them
+   by the homography between the two squares.
 
 Measured on the simulator (``benchmarks/bench_tags.py``) and on the real duckietown
 photos; see BENCHMARKS.md. Families whose border is not the outermost dark ring
