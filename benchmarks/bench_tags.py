@@ -1,7 +1,8 @@
 """Fiducial tags (issue 6): speed, real photos, simulated accuracy, detection rate, NEES.
 
     PYTHONPATH=. python benchmarks/bench_tags.py [--samples 2000] [--frames 600]
-        [--calibrate] [--speed-only] [--plot docs/tag_detection_rate.png] [--json out.json]
+        [--calibrate | --calibrate-only] [--speed-only] [--plot docs/tag_detection_rate.png]
+        [--json out.json]
 
 - speed: ``estimate_tags`` (detection + undistortion + both IPPE solutions + covariance)
   per 1280 x 800 front frame, median over frames along a simulated `garage` drive;
@@ -14,8 +15,8 @@
   position variants, detection rate by distance (plotted), and the NEES of the vehicle-
   frame observations against chi-square bounds; also the NEES on the tags seen along a
   `garage` drive;
-- ``--calibrate``: fits the covariance constants on a separate sweep and prints them
-  (copy them into ``TagNoiseModel``).
+- ``--calibrate`` (``--calibrate-only``: and nothing else): fits the covariance constants
+  on a separate sweep (seed 11) and prints them (``model``: copy into ``TagNoiseModel``).
 """
 
 from __future__ import annotations
@@ -398,8 +399,8 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
     (range, across the line of sight, rotation about the tag's axes), viewing angles about
     the tag's x and y axes, whether the best IPPE solution was the wrong (flipped) one,
     the ambiguity ratio, and whether the view becomes an observation."""
-    keys = ("s", "s_min", "rho", "e_rho", "e_perp", "e_rot", "th", "flip", "ambiguity",
-            "usable", "clipped")
+    keys = ("s", "rho", "e_rho", "e_perp", "e_rot", "th", "flip", "ambiguity", "usable",
+            "clipped")
     out: dict[str, list] = {k: [] for k in keys}
     for r in rows:
         if r["detection"] is None:
@@ -419,7 +420,6 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
         e_other = (abs(wrap_angle(math.atan2(-pose.other.R[0, 2], pose.other.R[2, 2])
                                   - true_heading)) if pose.other else np.inf)
         out["s"].append(side_px(r["detection"].corners))
-        out["s_min"].append(min_side_px(r["detection"].corners))
         out["rho"].append(rho)
         out["e_rho"].append(rho - np.linalg.norm(pt))
         out["e_perp"].append((ut @ b1, ut @ b2))
