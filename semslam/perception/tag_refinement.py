@@ -169,15 +169,15 @@ def refine_corners(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> 
         return c
     # side k's middle line in the tag grid: (n_k - b_k t_k) . X = middle + o_k; corner i
     # (grid order) where sides i - 1 and i meet
-    ring = np.empty((4, 2))
+    middle_square = np.empty((4, 2))
     for i in range(4):
         rows, rhs = [], []
         for k in ((i - 1) % 4, i):
             o, b = lines[k]
             rows.append(_NORMALS[k] - b * tangents[k])
             rhs.append(middle + o)
-        ring[i] = np.linalg.solve(np.array(rows), np.array(rhs))
-    ring_img = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(4, 2)
+        middle_square[i] = np.linalg.solve(np.array(rows), np.array(rhs))
+    ring_img = cv2.perspectiveTransform(middle_square.reshape(-1, 1, 2), H).reshape(4, 2)
     # the outer square from the ring's middle square by the homography between them
     H_ring = cv2.getPerspectiveTransform((grid * (middle / half)).astype(np.float32),
                                          ring_img.astype(np.float32)).astype(np.float64)
