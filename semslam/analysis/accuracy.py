@@ -137,13 +137,28 @@ class OdometryGrade:
     with a 1 s correlation: the variance they add grows as sigma^2 * t (t in seconds),
     the speed's along the travel, the rate's on the heading. ``position_walk`` (m per
     sqrt(s), 0 for Hofmann's grades) adds ``position_walk^2 * t`` on x AND y: slip and
-    whatever else a filter covers with an isotropic random walk (semslam's localizer)."""
+    whatever else a filter covers with an isotropic random walk (semslam's localizer).
+
+    A filter that estimates the odometry's own errors (semslam's localizer) has two more
+    states: the wheel speed's relative scale error, known to ``scale_sigma`` before any
+    landmark and drifting by ``scale_walk`` per sqrt(s), and the gyro's bias, known to
+    ``bias_sigma_deg`` (deg/s) and drifting by ``bias_walk_deg`` (deg/s per sqrt(s)).
+    Both 0 (Hofmann's grades): no such states, the errors are part of the white noise."""
 
     name: str
     speed_sigma: float
     heading_sigma_deg: float
     rate_sigma_deg: float
     position_walk: float = 0.0
+    scale_sigma: float = 0.0
+    scale_walk: float = 0.0
+    bias_sigma_deg: float = 0.0
+    bias_walk_deg: float = 0.0
+
+    @property
+    def calibrated(self) -> bool:
+        """Does the filter estimate the wheel scale and the gyro bias?"""
+        return self.scale_sigma > 0 or self.bias_sigma_deg > 0
 
 
 GRADES = {
@@ -167,19 +182,28 @@ def localizer_grade(cfg: LocalizationConfig, odometry_rate: float) -> OdometryGr
     ``position_walk^2`` per second on x and y: in the grade's ``sigma^2 * t`` convention
     ``speed_sigma / sqrt(f)``, ``sqrt(yaw_rate_sigma^2 / f + yaw_walk^2)``, and the walk.
     Checked against the localizer's own filter coasting in the tests. The heading starts
-    from the first frame's own uncertainty (no floor). The localizer has no state for a
-    wheel-speed scale error or a gyro bias, so neither has the grade: its walks are what
-    covers them.
+    from the first frame's own uncertainty (no floor). With
+    ``estimate_odometry_errors`` the localizer has states for the wheel speed's scale error
+    and the gyro's bias, and so has the grade, with the same priors and drifts.
     """
     if not (math.isfinite(odometry_rate) and odometry_rate > 0):
         raise ValueError(f"odometry rate must be a positive number of Hz, got {odometry_rate}")
     rate = math.sqrt(cfg.yaw_rate_sigma**2 / odometry_rate + cfg.yaw_walk**2)
+    calibration = {}
+    if cfg.estimate_odometry_errors:
+        calibration = {
+            "scale_sigma": cfg.speed_scale_prior_sigma,
+            "scale_walk": cfg.speed_scale_walk,
+            "bias_sigma_deg": math.degrees(cfg.gyro_bias_prior_sigma),
+            "bias_walk_deg": math.degrees(cfg.gyro_bias_walk),
+        }
     return OdometryGrade(
         "localizer",
         cfg.speed_sigma / math.sqrt(odometry_rate),
         0.0,
         math.degrees(rate),
         cfg.position_walk,
+        **calibration,
     )
 
 
@@ -527,37 +551,53 @@ def filter_route(
     none, the heading never better than the grade's) and predicts between poses with
     the grade: speed noise along the travelled step, yaw-rate noise on the heading, the
     position walk on x and y (see :class:`OdometryGrade`), heading uncertainty carried
-    into the position by the step. After each update the position block is raised (in the
-    PSD sense) to ``floors`` (N, 2, 2; m^2) where given, as the localizer does.
+    into the position by the step. A grade that estimates the wheel scale and gyro bias
+    carries them as two more states: the scale error moves the position along the step
+    (by the step's length per unit of scale), the bias turns the heading (by ``dt`` per
+    rad/s). After each update the position block is raised (in the PSD sense) to
+    ``floors`` (N, 2, 2; m^2) where given, as the localizer does.
     """
     poses = np.asarray(poses, float).reshape(-1, 3)
     times = np.asarray(times, float).reshape(-1)
     out = np.zeros((len(poses), 3, 3))
     sv2, sw2 = grade.speed_sigma**2, math.radians(grade.rate_sigma_deg) ** 2
     walk2 = grade.position_walk**2
+    n = 5 if grade.calibrated else 3
     first = single_frame_covariance(infos[0])
-    P = first.copy() if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
+    P = np.zeros((n, n))
+    P[:3, :3] = first if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
     P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
-    out[0] = P
-    F = np.eye(3)
+    if grade.calibrated:
+        P[3, 3] = grade.scale_sigma**2
+        P[4, 4] = math.radians(grade.bias_sigma_deg) ** 2
+        calibration_walk2 = np.array([grade.scale_walk, math.radians(grade.bias_walk_deg)]) ** 2
+    out[0] = P[:3, :3]
+    F = np.eye(n)
+    info = np.zeros((n, n))
     for k in range(1, len(poses)):
         dt = max(float(times[k] - times[k - 1]), 1e-6)
         step = poses[k, :2] - poses[k - 1, :2]
         c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
         F[0, 2], F[1, 2] = -step[1], step[0]
+        if grade.calibrated:
+            F[:2, 3] = -step  # the wheels over-read by the scale: the car went less far
+            F[2, 4] = -dt  # the gyro over-reads by the bias: the car turned less
         P = F @ P @ F.T
         P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]])
         if walk2:
             P[:2, :2] += walk2 * dt * np.eye(2)
         P[2, 2] += sw2 * dt
+        if grade.calibrated:
+            P[3:, 3:] += np.diag(calibration_walk2 * dt)
         if infos[k].any():
-            P = np.linalg.inv(np.linalg.inv(P) + infos[k])
+            info[:3, :3] = infos[k]
+            P = np.linalg.inv(np.linalg.inv(P) + info)
         if floors is not None and floors[k].any():
             gap = floors[k] - P[:2, :2]
             w, V = np.linalg.eigh(0.5 * (gap + gap.T))
             P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
         P = (P + P.T) / 2
-        out[k] = P
+        out[k] = P[:3, :3]
     return out
 
 

@@ -1,18 +1,22 @@
 """The localizer's Kalman filter: CTRV state, odometry as measurements, two frame updates.
 
 State ``(x, y, yaw, v, yaw_rate)`` in the map frame (m, m, rad, m/s, rad/s) with its 5x5
-covariance. Prediction is the CTRV model of :mod:`semslam.motion` with its analytic
-Jacobian (Houben eq. 11-20); process noise is white acceleration and yaw acceleration
-entering through the speed and turn-rate columns, plus a small random walk on the pose for
-what CTRV does not model. Wheel speed and gyro are linear measurements of ``v`` and
-``yaw_rate``.
+covariance, or, to estimate the odometry's own errors, ``(x, y, yaw, v, yaw_rate, scale,
+bias)`` with a 7x7 one: ``scale`` the wheel speed's relative error (0: exact), ``bias`` the
+gyro's offset (rad/s). Prediction is the CTRV model of :mod:`semslam.motion` with its
+analytic Jacobian (Houben eq. 11-20); process noise is white acceleration and yaw
+acceleration entering through the speed and turn-rate columns, plus a small random walk on
+the pose for what CTRV does not model and on ``scale`` and ``bias`` (they drift slowly).
+Wheel speed measures ``(1 + scale) v`` and the gyro ``yaw_rate + bias`` (the 5-state
+filter: ``v`` and ``yaw_rate`` themselves).
 
 Frame updates take stacked measurements (:mod:`semslam.localization.measurements`):
 
 - ``ekf``: linearise each model at the prediction (analytic Jacobians), Joseph-form update.
-- ``sigma``: Houben's unscented update (Alg. 3): 11 sigma points along the eigenvectors of
-  ``P``, ``X0 = x`` with weight ``alpha``, ``X±i = x ± sqrt(5 / (1 - alpha) * lambda_i) e_i``
-  with weights ``(1 - alpha) / 10`` (this scale reproduces ``P`` exactly from the points),
+- ``sigma``: Houben's unscented update (Alg. 3): ``2n + 1`` sigma points (11 for his
+  5 states) along the eigenvectors of ``P``, ``X0 = x`` with weight ``alpha``,
+  ``X±i = x ± sqrt(n / (1 - alpha) * lambda_i) e_i`` with weights ``(1 - alpha) / 2n``
+  (this scale reproduces ``P`` exactly from the points),
   innovation covariance and cross-covariance from the spread of the predicted measurements.
 
 Both expose the innovation and its covariance before committing, so the caller can reject
@@ -28,7 +32,7 @@ import numpy as np
 from semslam.geometry import FloatArray, wrap_angle
 from semslam.motion import ctrv_jacobian, ctrv_predict
 
-_H_ODOMETRY = np.array([[0, 0, 0, 1.0, 0], [0, 0, 0, 0, 1.0]])
+POSE_STATES, CTRV_STATES, CALIBRATED_STATES = 3, 5, 7
 
 
 @dataclass(frozen=True)
@@ -39,12 +43,14 @@ class ProcessNoise:
     yaw_acceleration: float  # rad/s^2 per sqrt(Hz), on yaw_rate
     position_walk: float  # m per sqrt(s), on x and y
     yaw_walk: float  # rad per sqrt(s), on yaw
+    scale_walk: float = 0.0  # per sqrt(s), on the wheel-speed scale error (7 states)
+    bias_walk: float = 0.0  # rad/s per sqrt(s), on the gyro bias (7 states)
 
 
 @dataclass(frozen=True)
 class Innovation:
     """A prepared update: residual ``nu`` (m,), its covariance ``S`` (m, m) and the
-    state-measurement cross-covariance ``C`` (5, m)."""
+    state-measurement cross-covariance ``C`` (n, m)."""
 
     nu: FloatArray
     S: FloatArray
@@ -57,13 +63,18 @@ class Innovation:
 
 
 class CtrvFilter:
-    """Extended / sigma-point Kalman filter on the CTRV state."""
+    """Extended / sigma-point Kalman filter on the CTRV state (5 states), or on the CTRV
+    state and the odometry's scale and bias (7 states, when ``x`` has 7 entries)."""
 
     def __init__(self, x: FloatArray, P: FloatArray, noise: ProcessNoise, alpha: float = 0.2):
-        self.x = np.asarray(x, dtype=float).copy()
-        self.P = np.asarray(P, dtype=float).copy()
         self.noise = noise
         self.alpha = alpha
+        self.reset(x, P)
+
+    @property
+    def calibrated(self) -> bool:
+        """Does the state hold the odometry's scale and bias?"""
+        return len(self.x) == CALIBRATED_STATES
 
     @property
     def pose(self) -> FloatArray:
@@ -78,28 +89,34 @@ class CtrvFilter:
         """Move the state ``dt`` seconds ahead (dt >= 0)."""
         if dt <= 0:
             return
-        F = ctrv_jacobian(self.x, dt)
+        F = np.eye(len(self.x))
+        F[:CTRV_STATES, :CTRV_STATES] = ctrv_jacobian(self.x[:CTRV_STATES], dt)
         n = self.noise
         G = F[:, 3:5]  # noise enters as a change of v and yaw_rate at the start of the step
         Q = G @ np.diag([n.acceleration**2 * dt, n.yaw_acceleration**2 * dt]) @ G.T
         Q[0, 0] += n.position_walk**2 * dt
         Q[1, 1] += n.position_walk**2 * dt
         Q[2, 2] += n.yaw_walk**2 * dt
-        self.x = ctrv_predict(self.x, dt)
+        if self.calibrated:
+            Q[5, 5] += n.scale_walk**2 * dt
+            Q[6, 6] += n.bias_walk**2 * dt
+        self.x[:CTRV_STATES] = ctrv_predict(self.x[:CTRV_STATES], dt)
         self.P = F @ self.P @ F.T + Q
         self._symmetrise()
 
     def update_odometry(self, speed: float, yaw_rate: float, speed_sigma: float,
                         yaw_rate_sigma: float) -> None:
-        """Wheel speed (m/s) and gyro (rad/s) as direct measurements of v and yaw_rate."""
+        """Wheel speed (m/s) and gyro (rad/s): measurements of ``(1 + scale) v`` and
+        ``yaw_rate + bias`` (of ``v`` and ``yaw_rate`` in the 5-state filter)."""
         R = np.diag([speed_sigma**2, yaw_rate_sigma**2])
-        nu = np.array([speed - self.x[3], yaw_rate - self.x[4]])
-        S = self.P[3:5, 3:5] + R
-        C = self.P[:, 3:5]
+        predicted, H = odometry_measurement(self.x)
+        nu = np.array([speed, yaw_rate]) - predicted
+        C = self.P @ H.T
+        S = H @ C + R
         K = C @ np.linalg.inv(S)
         self.x = self.x + K @ nu
         self.x[2] = wrap_angle(self.x[2])
-        IKH = np.eye(5) - K @ _H_ODOMETRY
+        IKH = np.eye(len(self.x)) - K @ H
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
         self._symmetrise()
 
@@ -109,7 +126,7 @@ class CtrvFilter:
         if mode == "ekf":
             pose = self.x[:3]
             nu = np.concatenate([m.residual(m.predict(pose)[0]) for m in measurements])
-            H = np.zeros((len(nu), 5))
+            H = np.zeros((len(nu), len(self.x)))
             H[:, :3] = np.vstack([m.jacobian(pose) for m in measurements])
             C = self.P @ H.T
             S = H @ C + R
@@ -117,7 +134,7 @@ class CtrvFilter:
         if mode == "sigma":
             X, w = self.sigma_points()
             Z = np.concatenate([m.predict(X[:, :3]) for m in measurements], axis=1)
-            dZ = _residuals(measurements, Z)  # z - Z_i, angles wrapped, (11, m)
+            dZ = _residuals(measurements, Z)  # z - Z_i, angles wrapped, (2n + 1, m)
             mean_dZ = w @ dZ  # z - z_hat, the innovation
             E = dZ - mean_dZ  # Z_i - z_hat up to sign
             dX = X - self.x
@@ -136,22 +153,40 @@ class CtrvFilter:
         self._symmetrise()
 
     def sigma_points(self) -> tuple[FloatArray, FloatArray]:
-        """Houben's 11 sigma points (11, 5) and weights (11,)."""
+        """Houben's ``2n + 1`` sigma points (2n + 1, n) and weights (2n + 1,)."""
+        n = len(self.x)
         lam, E = np.linalg.eigh(self.P)
         lam = np.maximum(lam, 0.0)
-        scale = np.sqrt(5.0 / (1.0 - self.alpha) * lam)
+        scale = np.sqrt(n / (1.0 - self.alpha) * lam)
         offsets = (E * scale).T  # row i = scale_i * e_i
         X = np.vstack([self.x, self.x + offsets, self.x - offsets])
-        w = np.full(11, (1.0 - self.alpha) / 10.0)
+        w = np.full(2 * n + 1, (1.0 - self.alpha) / (2 * n))
         w[0] = self.alpha
         return X, w
 
     def reset(self, x: FloatArray, P: FloatArray) -> None:
-        self.x = np.asarray(x, dtype=float).copy()
-        self.P = np.asarray(P, dtype=float).copy()
+        x = np.asarray(x, dtype=float).copy()
+        P = np.asarray(P, dtype=float).copy()
+        if len(x) not in (CTRV_STATES, CALIBRATED_STATES) or P.shape != (len(x), len(x)):
+            raise ValueError(f"filter state of {len(x)} entries with a {P.shape} covariance: "
+                             "expected 5 or 7 entries and a square covariance to match")
+        self.x, self.P = x, P
 
     def _symmetrise(self) -> None:
         self.P = 0.5 * (self.P + self.P.T)
+
+
+def odometry_measurement(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """What wheel speed and gyro read in state ``x`` (5 or 7 entries): ``(1 + scale) v``
+    and ``yaw_rate + bias`` (m/s, rad/s), and the (2, n) Jacobian of that reading."""
+    H = np.zeros((2, len(x)))
+    H[0, 3], H[1, 4] = 1.0, 1.0
+    reading = np.array([x[3], x[4]], dtype=float)
+    if len(x) == CALIBRATED_STATES:
+        v, scale, bias = x[3], x[5], x[6]
+        reading += [scale * v, bias]
+        H[0, 3], H[0, 5], H[1, 6] = 1.0 + scale, v, 1.0
+    return reading, H
 
 
 def _residuals(measurements: list, Z: FloatArray) -> FloatArray:

@@ -37,7 +37,12 @@ from semslam.config import LocalizationConfig
 from semslam.errors import DriveError
 from semslam.geometry import FloatArray, wrap_angle
 from semslam.localization.association import LocalMap
-from semslam.localization.filter import CtrvFilter, ProcessNoise
+from semslam.localization.filter import (
+    CALIBRATED_STATES,
+    CTRV_STATES,
+    CtrvFilter,
+    ProcessNoise,
+)
 from semslam.localization.measurements import stack
 from semslam.localization.recent import RecentFrames
 from semslam.localization.relocalize import Relocalizer
@@ -97,9 +102,11 @@ class Localizer:
         self.odo_v = np.asarray(odometry_speed, dtype=float)
         self.odo_w = np.asarray(odometry_yaw_rate, dtype=float)
         noise = ProcessNoise(
-            cfg.acceleration_sigma, cfg.yaw_acceleration_sigma, cfg.position_walk, cfg.yaw_walk
+            cfg.acceleration_sigma, cfg.yaw_acceleration_sigma, cfg.position_walk, cfg.yaw_walk,
+            cfg.speed_scale_walk, cfg.gyro_bias_walk,
         )
-        self.filter = CtrvFilter(np.zeros(5), np.eye(5), noise, cfg.sigma_alpha)
+        n = CALIBRATED_STATES if cfg.estimate_odometry_errors else CTRV_STATES
+        self.filter = CtrvFilter(np.zeros(n), np.eye(n), noise, cfg.sigma_alpha)
         self.initialized = False
         self.t: float | None = None
         self._next_odometry = 0
@@ -227,10 +234,20 @@ class Localizer:
         i = max(self._next_odometry - 1, 0)
         v = self.odo_v[i] if len(self.odo_v) else 0.0
         w = self.odo_w[i] if len(self.odo_w) else 0.0
-        P = np.zeros((5, 5))
+        f, cfg = self.filter, self.cfg
+        x = np.zeros(len(f.x))
+        P = np.zeros((len(f.x), len(f.x)))
+        x[:5] = *pose, v, w
         P[:3, :3] = covariance
-        P[3, 3], P[4, 4] = self.cfg.speed_sigma**2, self.cfg.yaw_rate_sigma**2
-        self.filter.reset(np.array([*pose, v, w]), P)
+        P[3, 3], P[4, 4] = cfg.speed_sigma**2, cfg.yaw_rate_sigma**2
+        if f.calibrated:  # the odometry's errors survive a jump of the pose
+            if self.initialized:
+                x[5:], P[5:, 5:] = f.x[5:], f.P[5:, 5:]
+            else:
+                P[5, 5], P[6, 6] = cfg.speed_scale_prior_sigma**2, cfg.gyro_bias_prior_sigma**2
+            x[3] = v / (1.0 + x[5])
+            x[4] = w - x[6]
+        f.reset(x, P)
         self.initialized = True
         self._failures = 0
         self._disagreements = 0

@@ -43,19 +43,24 @@ def _coast_localizer(cfg: LocalizationConfig, yaw: float, speed: float, seconds:
     """The localizer's own filter (its prediction and odometry updates, no frame): the
     pose covariance after ``seconds`` of straight driving."""
     noise = ProcessNoise(cfg.acceleration_sigma, cfg.yaw_acceleration_sigma,
-                         cfg.position_walk, cfg.yaw_walk)
-    P = np.zeros((5, 5))
+                         cfg.position_walk, cfg.yaw_walk, cfg.speed_scale_walk,
+                         cfg.gyro_bias_walk)
+    n = 7 if cfg.estimate_odometry_errors else 5
+    P = np.zeros((n, n))
     P[3, 3], P[4, 4] = cfg.speed_sigma**2, cfg.yaw_rate_sigma**2
-    f = CtrvFilter(np.array([0.0, 0.0, yaw, speed, 0.0]), P, noise)
+    if n == 7:  # the localizer's priors on the wheel scale and the gyro bias
+        P[5, 5], P[6, 6] = cfg.speed_scale_prior_sigma**2, cfg.gyro_bias_prior_sigma**2
+    f = CtrvFilter(np.array([0.0, 0.0, yaw, speed, 0.0, 0.0, 0.0][:n]), P, noise)
     for _ in range(round(seconds * RATE)):
         f.predict(1 / RATE)
         f.update_odometry(speed, 0.0, cfg.speed_sigma, cfg.yaw_rate_sigma)
     return f.pose_covariance
 
 
-@pytest.mark.parametrize("walk", [0.0, 0.02, 0.05])
-def test_localizer_grade_grows_like_the_localizers_own_filter(walk):
-    cfg = LocalizationConfig(position_walk=walk)
+@pytest.mark.parametrize("walk, calibrated", [(0.0, False), (0.02, False), (0.05, False),
+                                               (0.0, True), (0.02, True)])
+def test_localizer_grade_grows_like_the_localizers_own_filter(walk, calibrated):
+    cfg = LocalizationConfig(position_walk=walk, estimate_odometry_errors=calibrated)
     yaw, speed, seconds = 0.5, 2.0, 10.0
     expected = _coast_localizer(cfg, yaw, speed, seconds)
     t = np.arange(0.0, seconds + 1e-9, 0.1)  # frames at 10 Hz, nothing seen after the first
@@ -69,6 +74,9 @@ def test_localizer_grade_grows_like_the_localizers_own_filter(walk):
     for got, want in ((u @ P[:2, :2] @ u, u @ expected[:2, :2] @ u),
                       (v @ P[:2, :2] @ v, v @ expected[:2, :2] @ v), (P[2, 2], expected[2, 2])):
         assert got == pytest.approx(want, rel=0.03)
+    if calibrated:  # coasting with the prior scale error: 2 % of 20 m dominates
+        assert u @ P[:2, :2] @ u == pytest.approx((0.02 * speed * seconds) ** 2, rel=0.1)
+        return
     # Hofmann's automotive grade is not this filter: 20x the along-track variance
     auto = filter_route(infos, poses, t, GRADES["automotive"])[-1]
     assert u @ auto[:2, :2] @ u > 2 * u @ P[:2, :2] @ u

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from semslam.geometry import between, compose, inverse_transform_points
-from semslam.localization.filter import CtrvFilter, ProcessNoise
+from semslam.motion import ctrv_predict
+from semslam.localization.filter import CtrvFilter, ProcessNoise, odometry_measurement
 from semslam.localization.measurements import (
     MarkingMeasurement,
     PointMeasurement,
@@ -136,3 +137,70 @@ def test_covariance_stays_symmetric_positive_definite_over_a_long_drive():
             f.apply(f.innovation([m], m.R, "ekf" if k % 2 else "sigma"))
     np.testing.assert_allclose(f.P, f.P.T, atol=0)
     assert np.all(np.linalg.eigvalsh(f.P) > 0)
+
+
+def test_odometry_reading_and_its_jacobian_are_right_with_scale_and_bias():
+    x = np.array([1.0, 2.0, 0.3, 2.5, 0.2, 0.03, -0.004])
+    reading, H = odometry_measurement(x)
+    np.testing.assert_allclose(reading, [2.5 * 1.03, 0.2 - 0.004])
+    numeric = np.zeros((2, 7))
+    for i in range(7):
+        d = np.zeros(7)
+        d[i] = 1e-6
+        numeric[:, i] = (odometry_measurement(x + d)[0] - odometry_measurement(x - d)[0]) / 2e-6
+    np.testing.assert_allclose(H, numeric, atol=1e-8)
+    reading5, H5 = odometry_measurement(x[:5])  # the 5-state filter reads v and yaw_rate
+    np.testing.assert_allclose(reading5, [2.5, 0.2])
+    np.testing.assert_allclose(H5, np.eye(5)[3:5])
+
+
+def test_sigma_points_of_the_seven_state_filter_reproduce_mean_and_covariance():
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(7, 7))
+    f = CtrvFilter(np.array([1, 2, 0.3, 2.0, 0.1, 0.01, 1e-3]), A @ A.T + np.eye(7), NOISE)
+    X, w = f.sigma_points()
+    assert X.shape == (15, 7) and w.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(w @ X, f.x, atol=1e-12)
+    d = X - f.x
+    np.testing.assert_allclose((d * w[:, None]).T @ d, f.P, atol=1e-10)
+
+
+def test_a_filter_of_the_wrong_size_is_refused():
+    with pytest.raises(ValueError, match="5 or 7"):
+        CtrvFilter(np.zeros(6), np.eye(6), NOISE)
+
+
+def _drive_with_fixes(x0, P0, scale, bias, fixes_until, seconds, seed=3):
+    """A 2 m/s drive on a gentle S-curve: odometry at 50 Hz with a wheel-speed scale error
+    and a gyro bias, the true position fixed to 2 cm at 10 Hz until ``fixes_until`` s, then
+    dead reckoning. Returns the filter and the final position error (m)."""
+    rng = np.random.default_rng(seed)
+    noise = ProcessNoise(1.0, 0.5, 0.0, 0.0, 1e-4, 1e-5)
+    truth = np.array([0.0, 0.0, 0.0, 2.0, 0.0])
+    f = CtrvFilter(x0, P0, noise)
+    for k in range(round(seconds * 50)):
+        t = k / 50
+        truth[4] = 0.15 * np.sin(0.3 * t)
+        truth = ctrv_predict(truth, 0.02)
+        f.predict(0.02)
+        f.update_odometry(truth[3] * (1 + scale) + rng.normal(0, 0.03),
+                          truth[4] + bias + rng.normal(0, 0.003), 0.03, 0.003)
+        if k % 5 == 0 and t < fixes_until:
+            mP = truth[None, :2] + np.array([[3.0, 2.0], [3.0, -2.0], [-2.0, 2.0]])
+            z = inverse_transform_points(truth[:3], mP).ravel() + rng.normal(0, 0.02, 6)
+            m = PointMeasurement(z, np.eye(6) * 0.02**2, mP)
+            f.apply(f.innovation([m], m.R, "ekf"))
+    return f, float(np.hypot(*(f.pose[:2] - truth[:2])))
+
+
+def test_the_seven_state_filter_learns_the_wheel_scale_and_gyro_bias():
+    scale, bias = 0.03, 0.004
+    P7 = np.diag([1e-4, 1e-4, 1e-6, 0.01, 0.01, 0.05**2, 0.01**2])
+    f7, coasted7 = _drive_with_fixes(np.array([0, 0, 0, 2.0, 0, 0, 0]), P7, scale, bias, 40, 40)
+    assert f7.x[5] == pytest.approx(scale, abs=0.003)
+    assert f7.x[6] == pytest.approx(bias, abs=5e-4)
+    assert np.sqrt(f7.P[5, 5]) < 0.01 and np.sqrt(f7.P[6, 6]) < 2e-3
+    # then 10 s without fixes: the learnt errors are taken out of the dead reckoning
+    _, coasted7 = _drive_with_fixes(np.array([0, 0, 0, 2.0, 0, 0, 0]), P7, scale, bias, 40, 50)
+    _, coasted5 = _drive_with_fixes(np.array([0, 0, 0, 2.0, 0]), P7[:5, :5], scale, bias, 40, 50)
+    assert coasted7 < 0.25 * coasted5

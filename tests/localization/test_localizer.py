@@ -113,3 +113,21 @@ def test_a_frame_with_only_a_tag_updates_the_filter(sim):
     loc, _ = _run(sim, frames=[f for f in sim.noisy if f.t < frame.t])
     estimate = loc.step(only_tag)
     assert estimate.associated == 1 and estimate.status == "tracking"
+
+
+def test_learns_the_wheel_scale_and_gyro_bias_of_the_drive(sim):
+    rec = sim.record
+    speed, rate = rec.odo_speed * 1.03, rec.odo_yaw_rate + 0.003  # and the drive's own errors
+    dt = np.diff(rec.t)
+    true_scale = np.sum(speed[:-1] * dt) / np.sum(rec.speed[:-1] * dt) - 1
+    true_bias = np.sum((rate - rec.yaw_rate)[:-1] * dt) / (rec.t[-1] - rec.t[0])
+    loc = Localizer(sim.world.to_map(), LocalizationConfig(), rec.t, speed, rate,
+                    sim.frame_poses[0])
+    estimates = [loc.step(f) for f in sim.noisy]
+    assert loc.filter.x[5] == pytest.approx(true_scale, abs=0.004)
+    assert loc.filter.x[6] == pytest.approx(true_bias, abs=5e-4)
+    pos, _ = _errors(sim, estimates)
+    assert np.sqrt(np.mean(pos**2)) < 0.08
+    fixed = Localizer(sim.world.to_map(), LocalizationConfig(estimate_odometry_errors=False),
+                      rec.t, speed, rate, sim.frame_poses[0])
+    assert len(fixed.filter.x) == 5
