@@ -209,12 +209,16 @@ class LocalizationConfig(_Section):
         description="frame update: ekf (analytic Jacobians) or sigma (Houben's 11 sigma points)",
     )
     sigma_alpha: float = Field(0.2, gt=0, lt=1, description="sigma-point weight w0 (Houben)")
-    speed_sigma: float = Field(0.05, gt=0, description="wheel speed as a measurement of v, m/s")
-    yaw_rate_sigma: float = Field(0.005, gt=0, description="gyro as a measurement of yaw rate")
+    speed_sigma: float = Field(
+        0.03, gt=0, description="wheel speed as a measurement of v, m/s (the mapper's model)"
+    )
+    yaw_rate_sigma: float = Field(
+        0.003, gt=0, description="gyro as a measurement of yaw rate, rad/s (the mapper's model)"
+    )
     acceleration_sigma: float = Field(2.0, gt=0, description="process noise on v, m/s^2")
     yaw_acceleration_sigma: float = Field(1.0, gt=0, description="process noise, rad/s^2")
-    position_walk: float = Field(0.02, ge=0, description="unmodelled slip, m per sqrt(s)")
-    yaw_walk: float = Field(0.002, ge=0, description="unmodelled heading drift, rad per sqrt(s)")
+    position_walk: float = Field(0.0, ge=0, description="unmodelled slip, m per sqrt(s)")
+    yaw_walk: float = Field(0.0, ge=0, description="unmodelled heading drift, rad per sqrt(s)")
     estimate_odometry_errors: bool = Field(
         True, description="filter states for the wheel speed's scale error and the gyro's bias"
     )
@@ -224,8 +228,8 @@ class LocalizationConfig(_Section):
     gyro_bias_prior_sigma: float = Field(
         1e-3, gt=0, description="gyro bias before any landmark, rad/s"
     )
-    speed_scale_walk: float = Field(1e-4, ge=0, description="scale error drift, per sqrt(s)")
-    gyro_bias_walk: float = Field(1e-5, ge=0, description="gyro bias drift, rad/s per sqrt(s)")
+    speed_scale_walk: float = Field(2e-5, ge=0, description="scale error drift, per sqrt(s)")
+    gyro_bias_walk: float = Field(5e-6, ge=0, description="gyro bias drift, rad/s per sqrt(s)")
     init_position_sigma: float = Field(0.3, gt=0, description="--init x,y,yaw: 1-sigma, m")
     init_yaw_sigma_deg: float = Field(3.0, gt=0, description="--init x,y,yaw: 1-sigma, deg")
     slot_corner_sigma_min: float = Field(0.03, gt=0, description="floor on corner sigma, m")

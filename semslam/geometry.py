@@ -102,3 +102,26 @@ def clip_segment(a: ArrayLike, b: ArrayLike, lo: float, hi: float):
             if t0 > t1:
                 return None
     return a + d * t0, a + d * t1
+
+
+def rotation_variance(points: ArrayLike, covariance: ArrayLike) -> float:
+    """Variance (rad^2) of the rotation of a rigid set of 2D ``points`` (N, 2) about their
+    centroid, fitted by least squares to the points, from the points' joint covariance
+    ``covariance`` (2N, 2N; or (N, 2, 2) per point, taken as independent), m^2.
+
+    A small rotation ``d`` moves point ``i`` by ``d * (-a_iy, a_ix)`` (``a = p - centroid``),
+    so the least-squares rotation of displacements ``e`` is ``g . e`` with
+    ``g_i = (-a_iy, a_ix) / sum |a|^2``, and its variance is ``g^T C g``."""
+    P = np.asarray(points, dtype=float).reshape(-1, 2)
+    C = np.asarray(covariance, dtype=float)
+    if C.ndim == 3:
+        blocks, C = C, np.zeros((2 * len(P), 2 * len(P)))
+        for i, block in enumerate(blocks):
+            C[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = block
+    a = P - P.mean(axis=0)
+    spread = float(np.sum(a**2))
+    if spread <= 0 or C.shape != (2 * len(P), 2 * len(P)):
+        raise ValueError(f"rotation_variance: {len(P)} distinct points with a "
+                         f"{2 * len(P)} x {2 * len(P)} covariance needed, got {C.shape}")
+    g = np.column_stack([-a[:, 1], a[:, 0]]).ravel() / spread
+    return float(g @ C @ g)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from semslam.geometry import FloatArray
+from semslam.geometry import FloatArray, rotation_variance
 
 
 class SlotKind(StrEnum):
@@ -137,6 +137,10 @@ class Slot:
         corner_covariances: (4, 2, 2) covariance of each corner, m^2.
         kind: perpendicular, parallel or slanted.
         observations: how many frames saw this slot.
+        heading_variance: variance of the slot's orientation in the map, rad^2, from the
+            joint covariance of its corners (their errors are correlated: they were
+            measured together); None when the map does not say (see
+            :attr:`orientation_variance`).
     """
 
     id: int
@@ -146,6 +150,15 @@ class Slot:
     corner_covariances: FloatArray
     kind: SlotKind
     observations: int = 0
+    heading_variance: float | None = None
+
+    @property
+    def orientation_variance(self) -> float:
+        """``heading_variance``, or, when the map gives none, the rotation variance of the
+        corners taken as independent (larger: correlated corner errors partly cancel)."""
+        if self.heading_variance is not None:
+            return float(self.heading_variance)
+        return rotation_variance(self.corners, self.corner_covariances)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,6 +1,7 @@
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -10,6 +11,7 @@ from semslam.geometry import (
     inverse,
     inverse_transform_points,
     quaternion_to_yaw,
+    rotation_variance,
     transform_points,
     wrap_angle,
     yaw_to_quaternion,
@@ -75,3 +77,34 @@ def test_clip_segment_to_square():
     assert clip_segment([2.0, 2.0], [3.0, 3.0], -1.0, 1.0) is None
     inside = clip_segment([0.1, 0.2], [0.3, -0.4], -1.0, 1.0)
     assert np.allclose(inside[0], [0.1, 0.2]) and np.allclose(inside[1], [0.3, -0.4])
+
+
+def test_rotation_variance_of_independent_and_of_rigidly_rotated_points():
+    corners = np.array([[0.0, 0.0], [2.5, 0.0], [2.5, 5.0], [0.0, 5.0]])
+    spread = np.sum((corners - corners.mean(axis=0)) ** 2)  # 4 * (1.25^2 + 2.5^2)
+    independent = np.tile(np.eye(2) * 0.05**2, (4, 1, 1))
+    assert rotation_variance(corners, independent) == pytest.approx(0.05**2 / spread)
+    # errors that are one rigid rotation of 0.002 rad (1-sigma) about the centroid
+    a = corners - corners.mean(axis=0)
+    J = np.column_stack([-a[:, 1], a[:, 0]]).reshape(-1, 1)
+    assert rotation_variance(corners, J @ J.T * 0.002**2) == pytest.approx(0.002**2)
+    # and a common shift turns nothing
+    shift = np.tile(np.eye(2), (4, 4)) * 0.1**2
+    assert rotation_variance(corners, shift) == pytest.approx(0.0, abs=1e-15)
+    with pytest.raises(ValueError, match="distinct points"):
+        rotation_variance(np.zeros((4, 2)), independent)
+
+
+def test_rotation_variance_matches_sampled_rotations():
+    rng = np.random.default_rng(0)
+    corners = np.array([[0.0, 0.0], [2.5, 0.3], [2.4, 5.0], [0.1, 4.8]])
+    A = rng.normal(size=(8, 8)) * 0.02
+    C = A @ A.T
+    samples = rng.multivariate_normal(np.zeros(8), C, 20000).reshape(-1, 4, 2)
+    a = corners - corners.mean(axis=0)
+    angles = []
+    for e in samples:  # least-squares rotation of the displaced corners
+        b = a + e - e.mean(axis=0)
+        H = a.T @ b
+        angles.append(math.atan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
+    assert rotation_variance(corners, C) == pytest.approx(np.var(angles), rel=0.05)

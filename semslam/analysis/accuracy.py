@@ -223,7 +223,8 @@ class LocalizerModel:
             information is weighted by the chance of that (binomial in the slots and tags
             in view).
         map_floor_scale: after each update the position covariance is raised (PSD sense)
-            to this times the mean covariance of the seen slots' corners, or, where
+            to this times the mean covariance of the seen slots' corners and the heading
+            variance to this times their mean orientation variance, or, where
             painted lines are used without any slot, to this times
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
@@ -278,6 +279,7 @@ class MapGeometry:
         self.corner_cov = np.array([c for s in slots for c in s.corner_covariances], float).reshape(
             -1, 2, 2
         )
+        self.heading_var = np.array([s.orientation_variance for s in slots], float)
         self.slot_of_corner = np.repeat(np.arange(len(slots)), [len(s.corners) for s in slots])
         self.entrances = np.array([s.corners[:2] for s in slots], float).reshape(-1, 2, 2)
         tags = semantic_map.tags
@@ -297,7 +299,8 @@ class MapGeometry:
 @dataclass(frozen=True)
 class _Frame:
     """One frame's information per landmark kind (3 x 3 each), what is in view, and the
-    covariance floor the filter applies after it (2 x 2)."""
+    pose covariance floor the filter applies after it (3 x 3: the position block and the
+    heading variance)."""
 
     slots: FloatArray
     tags: FloatArray
@@ -352,7 +355,10 @@ def _frame(
             infos["slots"] = np.einsum("kai,kab,kbj->ij", H, np.linalg.inv(cov), H)
             slots = np.unique(geometry.slot_of_corner[seen])
             counts["corners"], counts["slots"] = len(seen), len(slots)
-            slot_floor = geometry.corner_cov[np.isin(geometry.slot_of_corner, slots)].mean(axis=0)
+            slot_floor = np.zeros((3, 3))
+            slot_floor[:2, :2] = geometry.corner_cov[
+                np.isin(geometry.slot_of_corner, slots)].mean(axis=0)
+            slot_floor[2, 2] = geometry.heading_var[slots].mean()
     # tags: vTt = mTv^-1 mTt, in the camera's field of view, facing it
     if len(geometry.tags):
         limit = min(sensors.tag_range_limit, model.tag_range_limit)
@@ -388,14 +394,14 @@ def _frame(
         k = model.fallback_below
         use_lines = _fewer_than(k, [(counts["slots"], ps), (counts["tags"], pt)])
         lines_without_slots = _fewer_than(k, [(counts["tags"], pt)])
-    floor = np.zeros((2, 2))
+    floor = np.zeros((3, 3))
     if model.map_floor_scale > 0:
         no_slot = (1 - ps) ** counts["slots"]
         only_lines = no_slot * lines_without_slots * (1 - (1 - pm) ** counts["lines"])
         if slot_floor is not None and no_slot <= 0.5:
             floor = model.map_floor_scale * slot_floor
         elif only_lines >= 0.5:
-            floor = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
+            floor[:2, :2] = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
     return _Frame(infos["slots"], infos["tags"], infos["lines"], counts, use_lines, floor)
 
 
@@ -506,7 +512,7 @@ def _route_frames(
 ) -> tuple[FloatArray, dict[str, np.ndarray], FloatArray]:
     poses = np.asarray(poses, float).reshape(-1, 3)
     infos = np.zeros((len(poses), 3, 3))
-    floors = np.zeros((len(poses), 2, 2))
+    floors = np.zeros((len(poses), 3, 3))
     counts = {k: np.zeros(len(poses), int) for k in ("corners", "slots", "tags", "lines")}
     for k, pose in enumerate(poses):
         frame = _frame(geometry, pose, sensors, model)
@@ -533,8 +539,9 @@ def route_floors(
     sensors: SensorModel = SensorModel(),
     model: LocalizerModel = IDEAL,
 ) -> FloatArray:
-    """The position covariance floor (N, 2, 2; m^2) the model's filter applies after the
-    update at each pose (zeros without one; see :class:`LocalizerModel`)."""
+    """The pose covariance floor (N, 3, 3: the position block in m^2 and the heading
+    variance in rad^2, no cross terms) the model's filter applies after the update at each
+    pose (zeros without one; see :class:`LocalizerModel`)."""
     return _route_frames(geometry, poses, sensors, model)[2]
 
 
@@ -554,8 +561,9 @@ def filter_route(
     into the position by the step. A grade that estimates the wheel scale and gyro bias
     carries them as two more states: the scale error moves the position along the step
     (by the step's length per unit of scale), the bias turns the heading (by ``dt`` per
-    rad/s). After each update the position block is raised (in the PSD sense) to
-    ``floors`` (N, 2, 2; m^2) where given, as the localizer does.
+    rad/s). After each update the position block is raised (in the PSD sense) to the
+    position block of ``floors`` (N, 3, 3), and the heading variance to its ``[2, 2]``,
+    where given, as the localizer does (a (N, 2, 2) ``floors`` is the position alone).
     """
     poses = np.asarray(poses, float).reshape(-1, 3)
     times = np.asarray(times, float).reshape(-1)
@@ -593,9 +601,11 @@ def filter_route(
             info[:3, :3] = infos[k]
             P = np.linalg.inv(np.linalg.inv(P) + info)
         if floors is not None and floors[k].any():
-            gap = floors[k] - P[:2, :2]
+            gap = floors[k][:2, :2] - P[:2, :2]
             w, V = np.linalg.eigh(0.5 * (gap + gap.T))
             P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
+            if len(floors[k]) == 3:
+                P[2, 2] = max(P[2, 2], floors[k][2, 2])
         P = (P + P.T) / 2
         out[k] = P[:3, :3]
     return out

@@ -6,7 +6,8 @@ Layout (map frame, metres and radians)::
      "metadata": {"generator": ..., "version": ..., "created": ..., "source": ...,
                   "statistics": {...}},
      "slots": [{"id", "label", "label_confidence", "corners" [4][2],
-                "corner_covariances" [4][2][2], "kind", "observations"}],
+                "corner_covariances" [4][2][2], "kind", "observations",
+                optional "heading_variance" (rad^2)}],
      "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
      "markings": [{"a" [2], "b" [2], "width"}]}
 
@@ -139,6 +140,8 @@ def _slot_to_dict(slot: Slot) -> dict[str, Any]:
         "corner_covariances": np.asarray(slot.corner_covariances, dtype=float).tolist(),
         "kind": SlotKind(slot.kind).value,
         "observations": int(slot.observations),
+        **({} if slot.heading_variance is None else
+           {"heading_variance": float(slot.heading_variance)}),
     }
 
 
@@ -151,6 +154,7 @@ def _slot_from_field(f: Field) -> Slot:
         corner_covariances=f["corner_covariances"].array((4, 2, 2)),
         kind=f["kind"].choice(SlotKind),
         observations=f["observations"].integer(0),
+        heading_variance=None if (h := f.get("heading_variance")) is None else h.number(0.0),
     )
 
 

@@ -65,6 +65,7 @@ class LocalMap:
         self.slots = semantic_map.slots
         self.corners = np.array([s.corners for s in self.slots]).reshape(-1, 4, 2)
         self.corner_cov = np.array([s.corner_covariances for s in self.slots]).reshape(-1, 4, 2, 2)
+        self.heading_var = np.array([s.orientation_variance for s in self.slots], dtype=float)
         self._slot_tree = cKDTree(self.corners.mean(axis=1)) if len(self.slots) else None
         self.by_label: dict[str, list[int]] = {}
         for i, s in enumerate(self.slots):

@@ -5,8 +5,10 @@ covariance, or, to estimate the odometry's own errors, ``(x, y, yaw, v, yaw_rate
 bias)`` with a 7x7 one: ``scale`` the wheel speed's relative error (0: exact), ``bias`` the
 gyro's offset (rad/s). Prediction is the CTRV model of :mod:`semslam.motion` with its
 analytic Jacobian (Houben eq. 11-20); process noise is white acceleration and yaw
-acceleration entering through the speed and turn-rate columns, plus a small random walk on
-the pose for what CTRV does not model and on ``scale`` and ``bias`` (they drift slowly).
+acceleration on ``v`` and ``yaw_rate`` at the end of each step (odometry samples hold until
+the next one, so a change of rate does not move the pose already travelled), an optional
+random walk on the pose for what CTRV does not model, and a slow drift of ``scale`` and
+``bias``.
 Wheel speed measures ``(1 + scale) v`` and the gyro ``yaw_rate + bias`` (the 5-state
 filter: ``v`` and ``yaw_rate`` themselves).
 
@@ -92,8 +94,14 @@ class CtrvFilter:
         F = np.eye(len(self.x))
         F[:CTRV_STATES, :CTRV_STATES] = ctrv_jacobian(self.x[:CTRV_STATES], dt)
         n = self.noise
-        G = F[:, 3:5]  # noise enters as a change of v and yaw_rate at the start of the step
-        Q = G @ np.diag([n.acceleration**2 * dt, n.yaw_acceleration**2 * dt]) @ G.T
+        # v and yaw_rate change at the END of the step: wheel speed and gyro are samples
+        # held until the next one, so a change seen in the next sample must not move the
+        # pose this step has already travelled (noise entering at the start of the step,
+        # through F's speed and rate columns, turns every change of the yaw rate into a
+        # heading error of dt times that change)
+        Q = np.zeros_like(F)
+        Q[3, 3] = n.acceleration**2 * dt
+        Q[4, 4] = n.yaw_acceleration**2 * dt
         Q[0, 0] += n.position_walk**2 * dt
         Q[1, 1] += n.position_walk**2 * dt
         Q[2, 2] += n.yaw_walk**2 * dt

@@ -185,19 +185,23 @@ class Localizer:
         errors are shared by every frame that sees the same landmarks, so they do not
         average out. The position covariance is raised (in the PSD sense) to the mean
         covariance of the associated slot corners (or, with markings only, the configured
-        marking uncertainty) times ``map_floor_scale``."""
+        marking uncertainty) times ``map_floor_scale``, and the heading variance to the
+        mean orientation variance of the associated slots times the same."""
         slots = assoc.slots
         if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
         if slots:
             floor = self.local_map.corner_cov[slots].mean(axis=(0, 1))
+            heading_floor = float(self.local_map.heading_var[slots].mean())
         else:  # markings only: maps keep no covariance for them, the configured one
             floor = np.eye(2) * self.cfg.marking_map_sigma**2
+            heading_floor = 0.0
         floor = self.cfg.map_floor_scale * floor
         P = self.filter.P
         gap = floor - P[:2, :2]
         w, V = np.linalg.eigh(0.5 * (gap + gap.T))
         P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
+        P[2, 2] = max(P[2, 2], self.cfg.map_floor_scale * heading_floor)
 
     def _frame_gate(self, dof: int) -> float:
         if dof not in self._frame_gates:

@@ -37,7 +37,7 @@ import gtsam
 import numpy as np
 
 from semslam.config import MappingConfig
-from semslam.geometry import FloatArray, compose, transform_points, wrap_angle
+from semslam.geometry import FloatArray, compose, rotation_variance, transform_points, wrap_angle
 from semslam.mapping.factors import (
     calibrated_odometry_residual,
     custom_factor,
@@ -699,10 +699,16 @@ class Mapper:
                 continue
             label, confidence = landmark.best_label()
             covs = np.zeros((4, 2, 2))
+            heading_variance = None
             if marginals is not None:
                 try:
+                    keys = [C(4 * landmark.index + c) for c in range(4)]
+                    joint = np.asarray(
+                        marginals.jointMarginalCovariance(keys).fullMatrix(), dtype=float
+                    )  # blocks in the order of the keys
                     for c in range(4):
-                        covs[c] = marginals.marginalCovariance(C(4 * landmark.index + c))
+                        covs[c] = joint[2 * c : 2 * c + 2, 2 * c : 2 * c + 2]
+                    heading_variance = rotation_variance(landmark.corners, joint)
                 except RuntimeError:  # gtsam refused this clique (ill-conditioned): the
                     # corner noise over the accepted observations, and counted
                     floor = self.cfg.slot_corner_sigma_min
@@ -718,6 +724,7 @@ class Mapper:
                     covs,
                     landmark.kind,
                     n,
+                    heading_variance,
                 )
             )
         for landmark in self.slots.items:  # merged duplicates answer for their survivor

@@ -166,6 +166,11 @@ def test_the_covariance_floor_follows_the_map():
     assert smallest.min() == pytest.approx(floor, rel=1e-6)
     free = predicted_along_route(slots, poses, t, grade, sure, replace(model, map_floor_scale=0))
     assert np.linalg.eigvalsh(free["covariance"][-1, :2, :2])[0] < 0.5 * floor
+    # the heading: the slots' orientation variance (here their corners taken as independent)
+    heading = np.mean([s.orientation_variance for s in SemanticMap(slots=tuple(
+        _slot(-2.0 + 2.5 * k, 1.2, k, cov=0.04**2) for k in range(4))).slots])
+    assert r["covariance"][1:, 2, 2].min() == pytest.approx(scale * heading, rel=1e-6)
+    assert free["covariance"][-1, 2, 2] < 0.5 * scale * heading
     # painted lines alone (a crossing pair): the configured marking uncertainty
     cross = SemanticMap(markings=(Marking(np.array([-4.0, 2.0]), np.array([4.0, 2.0]), 0.1),
                                   Marking(np.array([3.0, -4.0]), np.array([3.0, 4.0]), 0.1)))
@@ -186,10 +191,10 @@ def test_accuracy_command_takes_the_localizer_grade(tmp_path):
                                  "--grid-step", "4", "--grade", "localizer", "--json"])
     assert result.exit_code == 0, result.output
     doc = json.loads(result.stdout)
-    assert doc["grade"] == "localizer" and doc["odometry"]["position_walk"] == 0.02
+    assert doc["grade"] == "localizer" and doc["odometry"]["scale_sigma"] == 0.02
     hofmann = predicted_accuracy(tmp_path / "map.json", tmp_path / "h", tmp_path / "route.tum",
                                  grid_step=4.0)
-    assert hofmann["odometry"]["position_walk"] == 0.0
+    assert hofmann["odometry"]["scale_sigma"] == 0.0
     with pytest.raises(ConfigError, match="--grade: choose one of automotive, precise, "
                                           "localizer, got 'bad'"):
         prediction_model("bad")

@@ -178,3 +178,28 @@ def test_map_from_dict_uses_source_name() -> None:
     with pytest.raises(MapError, match=r"^<dict>: expected a JSON object"):
         map_from_dict([1, 2])
     assert issubclass(MapError, FormatError)
+
+
+def test_a_slot_heading_variance_round_trips_and_may_be_absent(tmp_path: Path) -> None:
+    import dataclasses
+
+    from semslam.geometry import rotation_variance
+
+    original = make_map()
+    with_heading = dataclasses.replace(
+        original, slots=(dataclasses.replace(original.slots[0], heading_variance=3e-6),
+                         *original.slots[1:]))
+    save_map(tmp_path / "map.json", with_heading)
+    loaded = load_map(tmp_path / "map.json")
+    assert loaded.slots[0].heading_variance == 3e-6
+    assert loaded.slots[0].orientation_variance == 3e-6
+    # an older map without it: the corners' rotation variance, taken as independent
+    other = loaded.slots[1]
+    assert other.heading_variance is None
+    assert other.orientation_variance == pytest.approx(
+        rotation_variance(other.corners, other.corner_covariances))
+    document = json.loads((tmp_path / "map.json").read_text())
+    document["slots"][0]["heading_variance"] = -1.0
+    _write(tmp_path / "bad.json", document)
+    with pytest.raises(MapError, match="heading_variance"):
+        load_map(tmp_path / "bad.json")

@@ -131,3 +131,22 @@ def test_learns_the_wheel_scale_and_gyro_bias_of_the_drive(sim):
     fixed = Localizer(sim.world.to_map(), LocalizationConfig(estimate_odometry_errors=False),
                       rec.t, speed, rate, sim.frame_poses[0])
     assert len(fixed.filter.x) == 5
+
+
+def test_the_heading_is_never_surer_than_the_slots_it_was_measured_against(sim):
+    """Map errors do not average out: after an update with slots, the heading variance is
+    at least the mean orientation variance of those slots (times map_floor_scale)."""
+    world = sim.world.to_map()
+    heading_sigma = math.radians(0.3)
+    unsure = dataclasses.replace(world, slots=tuple(
+        dataclasses.replace(s, heading_variance=heading_sigma**2) for s in world.slots))
+    rec = sim.record
+    for semantic_map, floored in ((unsure, True), (world, False)):
+        loc = Localizer(semantic_map, LocalizationConfig(), rec.t, rec.odo_speed,
+                        rec.odo_yaw_rate, sim.frame_poses[0])
+        estimates = [loc.step(f) for f in sim.noisy]
+        yaw_sigma = np.sqrt([e.covariance[2, 2] for e in estimates if e.status == "tracking"])
+        if floored:  # frames updated with tags or lines alone carry no slot floor
+            assert np.mean(yaw_sigma >= heading_sigma * (1 - 1e-9)) > 0.8
+        else:  # the true map is exact: the heading is known far better
+            assert np.median(yaw_sigma) < heading_sigma / 3

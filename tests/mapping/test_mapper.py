@@ -1,12 +1,14 @@
 """The mapper on small simulated drives where the right answer is known."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from semslam.config import MappingConfig, SimulationConfig
 from semslam.evaluation.map_metrics import evaluate_map
+from semslam.geometry import rotation_variance
 from semslam.mapping.mapper import Mapper, SightingStatus
 from semslam.simulation.scenario import simulate_drive
 from semslam.types import FrameObservations
@@ -55,6 +57,30 @@ def test_noisy_observations_robust_map_beats_odometry_only(small):
     assert robust.id_accuracy >= 0.95
     assert robust.corner_rmse_m < 0.06
     assert robust.corner_rmse_m < dead.corner_rmse_m
+
+
+def test_each_slot_carries_the_heading_variance_of_its_corners(small):
+    """The joint marginal of a slot's four corners gives its orientation's variance; the
+    slots' orientation errors against the truth agree with it."""
+    result = _map(small, small.noisy)
+    truth = {s.label: s for s in _seen_truth(small).slots}
+    normalised, independent = [], []
+    for slot in result.map.slots:
+        assert slot.heading_variance is not None and slot.heading_variance > 0
+        independent.append(rotation_variance(slot.corners, slot.corner_covariances))
+        true = truth.get(slot.label)
+        if true is not None:
+            a = slot.corners - slot.corners.mean(axis=0)
+            b = true.corners - true.corners.mean(axis=0)
+            H = b.T @ a
+            error = math.atan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
+            normalised.append(error**2 / slot.heading_variance)
+    assert len(normalised) > 30
+    assert 0.3 < np.mean(normalised) < 2.0  # 1 = consistent
+    # the corners' errors are correlated (measured together): taken as independent, they
+    # would claim several times the heading uncertainty
+    headings = [s.heading_variance for s in result.map.slots]
+    assert np.mean(independent) > 2 * np.mean(headings)
 
 
 def test_a_confidently_wrong_id_ends_on_the_null_hypothesis(small):
