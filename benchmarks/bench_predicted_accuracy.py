@@ -7,7 +7,9 @@ Per seed:
 
 1. **Consistency.** Simulates drive 1 of the `garage` world (`semslam simulate --drive 1
    --no-images`), localizes it against the world's TRUE map (`semslam localize --map
-   world.json --observations noisy`), and predicts the covariance along the true route
+   world.json --observations noisy`, with ``marking_map_sigma`` 0: the true map's lines
+   are exact, and its slots carry zero covariance), and predicts the covariance along the
+   true route
    (``groundtruth.tum``, every frame) with :mod:`semslam.analysis.accuracy`: Hofmann's
    ideal filter (default :class:`SensorModel`) with the ``simulator`` grade (the
    simulator's white wheel-speed and gyro noise in the grade's ``sigma^2 * t``
@@ -69,6 +71,7 @@ from semslam.types import SemanticMap
 SITUATIONS = ("slots/tags >= 2", "1 slot/tag", "lines only", "nothing")
 
 BOUND_95 = float(chi2.ppf(0.95, 2))  # 5.991
+EXACT_LINES = {"SEMSLAM_LOCALIZATION__MARKING_MAP_SIGMA": "0"}
 
 
 def simulator_grade() -> OdometryGrade:
@@ -145,8 +148,11 @@ def nees_run(root: Path, seed: int) -> dict:
     run_semslam(["simulate", str(drive), "--preset", "garage", "--seed", str(seed),
                  "--drive", "1", "--no-images"])
     out = root / f"s{seed}.tum"
+    # the true map's painted lines are exact: the localizer (and below, its prediction) is
+    # told so, as it would be for a surveyed map; its slots say so themselves (zero
+    # covariance)
     run_semslam(["localize", str(drive), "--map", str(drive / "world.json"), "-o", str(out),
-                 "--observations", "noisy", "--no-progress"])
+                 "--observations", "noisy", "--no-progress"], EXACT_LINES)
     truth_t, truth = read_tum(drive / "groundtruth.tum")
     track = read_track_csv(out.with_suffix(".csv"))
     has_pose = np.all(np.isfinite(track.poses), axis=1)
@@ -159,6 +165,8 @@ def nees_run(root: Path, seed: int) -> dict:
 
     started = time.perf_counter()
     cfg = load_config(None)
+    cfg = cfg.model_copy(update={"localization": cfg.localization.model_copy(
+        update={"marking_map_sigma": 0.0})})
     geometry = MapGeometry(load_map(drive / "world.json"))
     infos, _ = route_information(geometry, truth)  # Hofmann: SensorModel(), ideal filter
     predictions = {g.name: filter_route(infos, truth, truth_t, g)[:, :2, :2]

@@ -255,7 +255,10 @@ class LocalizationConfig(_Section):
     frame_gate: float = Field(
         0.9999, gt=0, lt=1, description="whole-frame chi-square gate probability (Houben)"
     )
-    marking_endpoint_sigma: float = Field(0.05, gt=0, description="marking end point, m")
+    marking_endpoint_sigma: float = Field(
+        0.03, gt=0, description="marking end point when the detector declares none, m "
+        "(the simulator's detector: 3 cm)"
+    )
     marking_map_sigma: float = Field(
         0.05, ge=0, description="m: uncertainty of a map marking's line (maps store none)"
     )
