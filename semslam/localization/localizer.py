@@ -12,7 +12,8 @@ Per frame (observations in the vehicle frame, time ``t``):
    a row had at least two observations of which none could be used; ``relocalized`` on
    the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
    several confidently read slot IDs that agree); the position covariance is floored at
-   the associated map landmarks' own covariance (map errors do not average out);
+   the associated map landmarks' own covariance and the heading variance at the
+   associated slots' orientation variance (map errors do not average out);
 5. recovery: while lost, and every ``check_every`` frames while tracking, the last
    seconds of frames (:mod:`.recent`) are relocalized globally; a global pose that
    contradicts the filter (outside the gate) twice in a row, or any global pose while
