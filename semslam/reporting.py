@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from rich.console import Console
@@ -98,6 +99,12 @@ def print_localize_summary(summary, console: Console | None = None) -> None:
         ("driving / localizing time", f"{summary.driving_s:.1f} s / {summary.elapsed_s:.1f} s"),
         ("track (pose, covariance, status)", str(summary.track)),
     ]
+    if summary.odometry_errors is not None:
+        (scale, bias), (scale_sigma, bias_sigma) = summary.odometry_errors
+        rows.insert(-1, ("wheel-speed scale error, estimated",
+                         f"{100 * scale:+.2f} % +- {100 * scale_sigma:.2f} %"))
+        rows.insert(-1, ("gyro bias, estimated", f"{math.degrees(bias):+.4f} +- "
+                         f"{math.degrees(bias_sigma):.4f} deg/s"))
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)

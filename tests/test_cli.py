@@ -223,6 +223,7 @@ def test_localize_against_the_true_map_writes_tum_and_track_and_evaluates(small_
                   "--no-progress")
     assert result.exit_code == 0, result.output
     assert traj.stat().st_size > 0 and traj.with_suffix(".csv").stat().st_size > 0
+    assert "wheel-speed scale error" in result.output and "gyro bias" in result.output
     result = _run("evaluate", "trajectory", traj, "--truth", small_drive / "groundtruth.tum",
                   "--map", small_drive / "world.json", "--json")
     assert result.exit_code == 0, result.output

@@ -162,6 +162,14 @@ class Localizer:
         status = TRACKING if applied else COASTING
         return self._estimate(status, applied, rejected, update_ms)
 
+    @property
+    def odometry_errors(self) -> tuple[FloatArray, FloatArray] | None:
+        """The estimated wheel-speed scale error (relative) and gyro bias (rad/s), and their
+        1-sigma, once a pose is known and while the filter estimates them; else None."""
+        if not (self.initialized and self.filter.calibrated):
+            return None
+        return self.filter.x[5:].copy(), np.sqrt(np.diag(self.filter.P)[5:])
+
     # ------------------------------------------------------------------ internals
     def _advance(self, t: float) -> None:
         """Apply odometry samples up to ``t`` and predict to ``t``."""

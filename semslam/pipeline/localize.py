@@ -33,6 +33,7 @@ class LocalizeSummary:
     update_ms_median: float
     elapsed_s: float
     driving_s: float
+    odometry_errors: tuple | None = None  # ((scale, bias), (sigmas)) at the end, or None
 
 
 def parse_init(text: str | None) -> np.ndarray | None:
@@ -110,4 +111,5 @@ def localize_drive(
         float(np.median(tracked)) if tracked else float("nan"),
         elapsed,
         float(frames[-1].t - frames[0].t) if frames else 0.0,
+        localizer.odometry_errors,
     )
