@@ -34,7 +34,7 @@ import numpy as np
 from semslam.geometry import FloatArray, wrap_angle
 from semslam.motion import ctrv_jacobian, ctrv_predict
 
-POSE_STATES, CTRV_STATES, CALIBRATED_STATES = 3, 5, 7
+CTRV_STATES, CALIBRATED_STATES = 5, 7  # (x, y, yaw, v, yaw_rate) [+ (scale, bias)]
 
 
 @dataclass(frozen=True)
