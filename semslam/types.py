@@ -158,7 +158,10 @@ class Slot:
         corners taken as independent (larger: correlated corner errors partly cancel)."""
         if self.heading_variance is not None:
             return float(self.heading_variance)
-        return rotation_variance(self.corners, self.corner_covariances)
+        corners = np.asarray(self.corners, dtype=float)
+        if not np.ptp(corners, axis=0).any():  # a degenerate slot: no orientation to doubt
+            return 0.0
+        return rotation_variance(corners, self.corner_covariances)
 
 
 @dataclass(frozen=True, eq=False)

@@ -198,6 +198,8 @@ def test_a_slot_heading_variance_round_trips_and_may_be_absent(tmp_path: Path) -
     assert other.heading_variance is None
     assert other.orientation_variance == pytest.approx(
         rotation_variance(other.corners, other.corner_covariances))
+    degenerate = dataclasses.replace(other, corners=np.zeros((4, 2)))
+    assert degenerate.orientation_variance == 0.0  # no orientation, no heading floor
     document = json.loads((tmp_path / "map.json").read_text())
     document["slots"][0]["heading_variance"] = -1.0
     _write(tmp_path / "bad.json", document)
