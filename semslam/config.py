@@ -206,7 +206,8 @@ class LocalizationConfig(_Section):
 
     update: str = Field(
         "ekf", pattern="^(ekf|sigma)$",
-        description="frame update: ekf (analytic Jacobians) or sigma (Houben's 2n + 1 sigma points: 15 with the 7 states)",
+        description="frame update: ekf (analytic Jacobians) or sigma (Houben's 2n + 1 sigma "
+        "points: 15 with the 7 states)",
     )
     sigma_alpha: float = Field(0.2, gt=0, lt=1, description="sigma-point weight w0 (Houben)")
     speed_sigma: float = Field(
