@@ -70,6 +70,7 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "apr
 CAM = default_front_camera()
 TAG_ID = 77
 HEIGHTS = (1.45, 1.6, 1.75, 1.9)
+LIGHT_SHIFTS = (0.0, 3.0, 6.0, 9.0)  # m: the tag under a light down to between lights
 # pupil-apriltags' own defaults (it truncates decode_sharpening 0.25 to an int)
 _APRILTAG3_DEFAULTS = DetectorSettings(decode_sharpening=0.0, min_white_black_diff=5, max_hamming=2)
 DIST_BINS = ((1.5, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 20.0), (20.0, 25.0))
@@ -78,14 +79,18 @@ DIST_BINS = ((1.5, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 20.0), (20.0, 25.0))
 # --------------------------------------------------------------------------- simulated sweep
 
 
-def bench_world(height: float) -> World:
+def bench_world(height: float, light_shift: float = 0.0, tag_id: int = TAG_ID) -> World:
     """An empty garage (floor, walls, ceiling lights along two aisles) with one pillar at
-    the origin carrying tag 77 (0.5 m) on its +x face, centre ``height`` m up."""
+    the origin carrying tag ``tag_id`` (0.5 m) on its +x face, centre ``height`` m up; the
+    aisles and their lights moved ``light_shift`` m away, so the tag is lit less (light
+    level at the pillar 1.56 / 1.41 / 0.94 / 0.69 for :data:`LIGHT_SHIFTS`)."""
     c = [np.array(p, float) for p in ((-40, -25), (40, -25), (40, 25), (-40, 25))]
-    tag = Tag(TagFamily.TAG36H11, TAG_ID, 0.5, np.array([0.305, 0.0, 0.0]), height,
+    tag = Tag(TagFamily.TAG36H11, tag_id, 0.5, np.array([0.305, 0.0, 0.0]), height,
               np.zeros((3, 3)))
-    aisles = (Aisle(np.array([-38.0, 3.5]), np.array([38.0, 3.5]), 6.0),
-              Aisle(np.array([12.0, -23.0]), np.array([12.0, 23.0]), 6.0))  # for the lights
+    aisles = (Aisle(np.array([-38.0, 3.5 + light_shift]), np.array([38.0, 3.5 + light_shift]),
+                    6.0),
+              Aisle(np.array([12.0 + light_shift, -23.0]), np.array([12.0 + light_shift, 23.0]),
+                    6.0))  # for the lights
     return World(preset="bench", seed=0, slots=(), tags=(tag,), markings=(),
                  marking_points=(), slot_paint=(), pillars=(Pillar(np.zeros(2), 0.6, 3.0),),
                  walls=tuple(Wall(c[i], c[(i + 1) % 4], 3.0) for i in range(4)),
@@ -125,18 +130,23 @@ def true_vTt(tag: Tag, mTv: np.ndarray) -> np.ndarray:
     return np.array([xy[0], xy[1], wrap_angle(tag.mTt[2] - mTv[2])])
 
 
-def sweep(n: int, seed: int) -> list[dict]:
-    """Render and measure ``n`` random views of the bench tag."""
-    worlds = [bench_world(h) for h in HEIGHTS]
+def sweep(n: int, seed: int, codes: tuple[int, ...] | None = None) -> list[dict]:
+    """Render and measure ``n`` random views of the bench tag: 16 worlds (4 light levels x
+    4 heights), one drawn per view, each with its code from ``codes`` (default: tag 77,
+    whose ring is read at 3 / 4 / 4 / 3 white data cells)."""
+    codes = codes or (TAG_ID,)
+    worlds = [bench_world(h, shift, codes[k % len(codes)]) for k, (shift, h) in
+              enumerate((sh, h) for sh in LIGHT_SHIFTS for h in HEIGHTS)]
     renderers = [FrontRenderer(w, CAM) for w in worlds]
     rng = np.random.default_rng(seed)
     half_fov = math.atan((CAM.size[0] / 2 - 20) / CAM.K[0, 0])
     w_img, h_img = CAM.size
     out = []
-    for k in range(n):
+    for _ in range(n):
         d, view = rng.uniform(1.5, 25.0), math.radians(rng.uniform(-70, 70))
         bearing, fseed = rng.uniform(-half_fov, half_fov), int(rng.integers(1 << 30))
-        tag = worlds[k % 4].tags[0]
+        world = int(rng.integers(len(worlds)))
+        tag = worlds[world].tags[0]
         mTv = pose_seeing(tag, d, view, bearing)
         p_true, R_true = true_camera_pose(tag, mTv)
         uv, _ = cv2.projectPoints(np.array([[-.25, .25, 0], [.25, .25, 0], [.25, -.25, 0],
@@ -148,8 +158,8 @@ def sweep(n: int, seed: int) -> list[dict]:
         row = {"d": d, "view": view, "inside": inside, "p_true": p_true, "R_true": R_true,
                "vTt_true": true_vTt(tag, mTv), "height": tag.height, "detection": None}
         if inside:
-            found = [t for t in detect_tags(renderers[k % 4].render(mTv, fseed))
-                     if t.tag_id == TAG_ID]
+            found = [t for t in detect_tags(renderers[world].render(mTv, fseed))
+                     if t.tag_id == tag.tag_id]
             row["detection"] = found[0] if found else None
         out.append(row)
     return out
@@ -291,9 +301,9 @@ def sweep_nees(rows: list[dict], settings: TagSettings) -> dict:
 # --------------------------------------------------------------------------- drive frames
 
 
-def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], dict]:
-    """Wall and CPU time (ms) of ``estimate_tags`` on frames along a garage drive, and the
-    NEES of the observations of the tags seen there."""
+def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], list, list]:
+    """Wall and CPU time (ms) of ``estimate_tags`` on frames along a garage drive (drive 0
+    of world ``seed``), and the errors and covariances of the tags observed there."""
     sim = simulate_drive("garage", seed, 0, SimulationConfig())
     renderer = FrontRenderer(sim.world, CAM)
     step = max(1, len(sim.frame_poses) // n_frames)
@@ -313,7 +323,20 @@ def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], di
                 e[2] = wrap_angle(e[2])
                 errors.append(e)
                 covs.append(obs.covariance)
-    return times, cpu_times, nees_of(errors, covs)
+    return times, cpu_times, errors, covs
+
+
+def held_out_drives(seeds: list[int], n_frames: int) -> dict:
+    """NEES of the tag observations along drive 0 of other worlds, per world and pooled."""
+    out: dict = {"per_world": {}}
+    errors, covs = [], []
+    for seed in seeds:
+        _, _, e, c = drive_frames(n_frames, seed)
+        out["per_world"][seed] = nees_of(e, c)
+        errors += e
+        covs += c
+    out["pooled"] = nees_of(errors, covs)
+    return out
 
 
 # --------------------------------------------------------------------------- real photos
@@ -415,17 +438,13 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
         ut = pt / np.linalg.norm(pt)
         rv = cv2.Rodrigues(Rt @ R.T)[0].ravel()
         v = R.T @ -u
-        true_heading = math.atan2(-Rt[0, 2], Rt[2, 2])
-        e_best = abs(wrap_angle(math.atan2(-R[0, 2], R[2, 2]) - true_heading))
-        e_other = (abs(wrap_angle(math.atan2(-pose.other.R[0, 2], pose.other.R[2, 2])
-                                  - true_heading)) if pose.other else np.inf)
         out["s"].append(side_px(r["detection"].corners))
         out["rho"].append(rho)
         out["e_rho"].append(rho - np.linalg.norm(pt))
         out["e_perp"].append((ut @ b1, ut @ b2))
         out["e_rot"].append((rv @ R[:, 0], rv @ R[:, 1], rv @ R[:, 2]))
         out["th"].append((abs(math.atan2(v[1], -v[2])), abs(math.atan2(v[0], -v[2]))))
-        out["flip"].append(e_best > e_other and e_best > math.radians(5))
+        out["flip"].append(_flipped(pose, Rt))
         out["ambiguity"].append(pose.ambiguity)
         out["clipped"].append(r["detection"].clipped > TagNoiseModel().clipped_share)
         # usable but for the flip probability, which the calibration fits itself
@@ -433,6 +452,18 @@ def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[st
         est = estimate_tag(r["detection"], CAM, settings)
         out["usable"].append(est is not None and usable(est, settings))
     return {k: np.array(v) for k, v in out.items()}
+
+
+def _flipped(pose, R_true: np.ndarray) -> bool:
+    """Is the other IPPE solution the right one: the chosen one's heading more than 5 deg
+    off and further off than the other's?"""
+    true_heading = math.atan2(-R_true[0, 2], R_true[2, 2])
+    R = pose.rotation
+    e_best = abs(wrap_angle(math.atan2(-R[0, 2], R[2, 2]) - true_heading))
+    if pose.other is None:
+        return False
+    e_other = abs(wrap_angle(math.atan2(-pose.other.R[0, 2], pose.other.R[2, 2]) - true_heading))
+    return e_best > e_other and e_best > math.radians(5)
 
 
 def _g(q: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -493,14 +524,15 @@ def calibrate(rows: list[dict]) -> dict:
     clip = x["clipped"]
     # the base model on the views that are not overexposed ...
     b = {k: v[~clip] for k, v in x.items()}
-    s, rho, rot, th, ok = b["s"], b["rho"], b["e_rot"], b["th"], ~b["flip"]
+    b = {k: v[~b["flip"]] for k, v in b.items()}  # the covariance given the solution is right
+    s, rho, rot, th = b["s"], b["rho"], b["e_rot"], b["th"]
     q_perp = _fit(lambda q: np.hypot(_g(q, s) / f, q[2]), b["e_perp"][:, 0],
                   [0.03, 2.0, 1e-5])
     q_rho = _fit(lambda q: rho * np.hypot(_g(q, s) / s, q[2]), b["e_rho"], [0.05, 2.0, 1e-3])
-    so, tho = s[ok], th[ok, 1]
-    q_tilt = _fit(lambda q: _g(q, so) / (so * np.sqrt((q[2] * so / f) ** 2 + np.sin(tho) ** 2)),
-                  rot[ok, 1], [0.1, 2.0, 1.0])
-    q_roll = _fit(lambda q: _g(q, so) / so, rot[ok, 2], [0.05, 2.0])
+    tho = th[:, 1]
+    q_tilt = _fit(lambda q: _g(q, s) / (s * np.sqrt((q[2] * s / f) ** 2 + np.sin(tho) ** 2)),
+                  rot[:, 1], [0.1, 2.0, 1.0])
+    q_roll = _fit(lambda q: _g(q, s) / s, rot[:, 2], [0.05, 2.0])
     fitted = {
         ("range_floor_px", "range_knee_px2", "range_rel_floor"): q_rho,
         ("bearing_floor_px", "bearing_knee_px2", "bearing_floor_rad"): q_perp,
@@ -521,7 +553,7 @@ def calibrate(rows: list[dict]) -> dict:
 
 VEHICLE_FIT = ("range_floor_px", "range_knee_px2", "range_rel_floor", "bearing_floor_px",
                "bearing_knee_px2", "bearing_floor_rad", "tilt_floor_px", "tilt_knee_px2",
-               "tilt_perspective", "clipped_knee_px", "clipped_floor")
+               "tilt_perspective", "clipped_knee_px", "clipped_floor", "contrast_power")
 
 
 def _refine_on_vehicle_errors(rows: list[dict], first: TagNoiseModel) -> TagNoiseModel:
@@ -531,7 +563,7 @@ def _refine_on_vehicle_errors(rows: list[dict], first: TagNoiseModel) -> TagNois
     included), from the per-term fits ``first`` (the overexposure factor from 30 px, 0.5)."""
     from scipy.optimize import minimize
 
-    start = replace(first, clipped_knee_px=30.0, clipped_floor=0.5)
+    start = replace(first, clipped_knee_px=30.0, clipped_floor=0.5, contrast_power=0.5)
     settings = TagSettings(noise=start)
     views = []
     for r in rows:
@@ -543,6 +575,8 @@ def _refine_on_vehicle_errors(rows: list[dict], first: TagNoiseModel) -> TagNois
         vTt, _ = vehicle_pose_2d(est.pose.position, est.pose.rotation, CAM.T_vehicle_camera)
         e = vTt - r["vTt_true"]
         e[2] = wrap_angle(e[2])
+        if _flipped(est.pose, r["R_true"]):
+            continue  # the covariance is the chosen solution's given that it is right
         views.append((est, e, min_side_px(est.corners)))
     f = float(CAM.K[0, 0])
 
@@ -550,7 +584,8 @@ def _refine_on_vehicle_errors(rows: list[dict], first: TagNoiseModel) -> TagNois
         m = replace(start, **dict(zip(VEHICLE_FIT, np.exp(log_q), strict=True)))
         total = 0.0
         for est, e, s_min in views:
-            c6 = camera_covariance(est.pose, est.side_px, f, m, est.detection.clipped, s_min)
+            c6 = camera_covariance(est.pose, est.side_px, f, m, est.detection.clipped, s_min,
+                                   est.detection.contrast)
             C = vehicle_covariance(est.pose.rotation, c6, CAM.T_vehicle_camera)
             total += float(e @ np.linalg.solve(C, e)) + float(np.linalg.slogdet(C)[1])
         return total
@@ -614,6 +649,20 @@ def markdown(result: dict) -> str:
                  f"{nd.get('position_mean')} (bounds {nd.get('position_bounds_95')}), yaw "
                  f"{nd.get('yaw_mean')}; {nd.get('share_above_chi2_95', 0):.1%} above chi2(3) "
                  f"95 % | within bounds |")
+    ho = result.get("nees_held_out_drives")
+    if ho:
+        per = ", ".join(f"{k}: {v.get('mean')} ({v['n']})" for k, v in ho["per_world"].items())
+        p = ho["pooled"]
+        worlds = ", ".join(map(str, ho["per_world"]))
+        lines.append(f"| NEES, tags along the drives of worlds {worlds}, {p['n']} observations "
+                     f"| pooled mean {p.get('mean')} (bounds {p.get('bounds_95')}); position "
+                     f"{p.get('position_mean')}, yaw {p.get('yaw_mean')}; per world {per} "
+                     "| within bounds |")
+    cs = result.get("nees_sweep_16_codes")
+    if cs:
+        lines.append(f"| NEES, sweep over 16 other tag codes, {cs['n']} observations | mean "
+                     f"{cs.get('mean')} (bounds {cs.get('bounds_95')}); position "
+                     f"{cs.get('position_mean')}, yaw {cs.get('yaw_mean')} | within bounds |")
     rate = ", ".join(f"{r['distance_m']} m: {r['detected']:.0%}" for r in
                      result["detection_rate"] if r["detected"] is not None)
     lines.append(f"| detection rate of tags fully in view (sweep) | {rate} | plotted |")
@@ -632,6 +681,10 @@ def main() -> None:
                         help="fit the constants (seed 11 sweep), print them and stop")
     parser.add_argument("--plot", type=Path, default=Path("docs/tag_detection_rate.png"))
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--held-out-drives", default="2,3,4,5,6,7",
+                        help="worlds whose drive's tag NEES is also measured ('' for none)")
+    parser.add_argument("--code-sweep", type=int, default=2000,
+                        help="views of a second sweep over 16 other tag codes (0: skip)")
     parser.add_argument("--speed-only", action="store_true",
                         help="only the per-frame time along the drive (and its NEES)")
     args = parser.parse_args()
@@ -642,7 +695,8 @@ def main() -> None:
         print(json.dumps(result["calibration"], indent=2), file=sys.stderr)
         if args.calibrate_only:
             return
-    times, cpu_times, result["nees_drive"] = drive_frames(args.frames, 1)
+    times, cpu_times, errors, covs = drive_frames(args.frames, 1)
+    result["nees_drive"] = nees_of(errors, covs)
     result["speed"] = {"frames": len(times), "median_ms": round(statistics.median(times), 2),
                        "p90_ms": round(float(np.percentile(times, 90)), 2),
                        "cpu_median_ms": round(statistics.median(cpu_times), 2),
@@ -656,6 +710,15 @@ def main() -> None:
     result["accuracy"] = accuracy_table(rows)
     result["detection_rate"] = detection_rate(rows, args.plot)
     result["nees_sweep"] = sweep_nees(rows, TagSettings())
+    if args.held_out_drives:
+        result["nees_held_out_drives"] = held_out_drives(
+            [int(v) for v in args.held_out_drives.split(",")], args.frames)
+    if args.code_sweep:
+        others = [i for i in range(587) if i != TAG_ID]
+        codes = tuple(int(v) for v in np.random.default_rng(7).choice(others, 16, replace=False))
+        result["nees_sweep_16_codes"] = sweep_nees(sweep(args.code_sweep, args.seed + 1, codes),
+                                                   TagSettings())
+        result["nees_sweep_16_codes"]["codes"] = list(codes)
     report(markdown(result), result, args.json)
 
 

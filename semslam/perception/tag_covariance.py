@@ -18,6 +18,13 @@ length ``f`` (px):
   head-on one, so head-on and small tags get uncertain normals);
 - turning in its own plane: ``g_roll(s) / s``.
 
+A tag that stands out less from its quiet zone has every pixel error multiplied by
+``(contrast_ref / contrast) ^ contrast_power`` (:func:`contrast_factor`; ``contrast`` the
+grey levels between quiet zone and black border,
+:func:`~semslam.perception.tag_refinement.border_contrast`): image noise moves an edge by
+noise / contrast. The calibration sweep spans the light levels of a garage (contrast
+60-220) since the tags along a drive are lit less than one under a lamp.
+
 An overexposed tag (clipped white around it) has every pixel error multiplied by
 ``sqrt(1 + c_clip^2 + (k_clip / s_min)^2)``, ``s_min`` its shortest side in the image
 (px): the corners come from the middle of the border ring
@@ -36,7 +43,8 @@ with the yaw alone at 0.30 on the evaluation sweep. So tags with ``w`` above
 ``TagSettings.max_flip_probability`` are not turned into observations.
 
 The constants below were fitted by maximum likelihood on 3,000 simulated views of a
-0.5 m tag (1.5-25 m, +-70 deg; ``benchmarks/bench_tags.py --calibrate-only``), keeping
+0.5 m tag (1.5-25 m, +-70 deg, 4 light levels;
+``benchmarks/bench_tags.py --calibrate-only``), keeping
 the views that become observations (:func:`semslam.perception.tags.usable`): each term
 on its own error first, then the terms of the 2D observation together on its
 vehicle-frame (x, y, yaw) errors. The simulator's image is cleaner than a real camera's
@@ -67,26 +75,28 @@ from semslam.perception.tag_pose import PositionVariant, TagPose
 class TagNoiseModel:
     """The covariance model's constants (pixel errors in px; see the module docstring)."""
 
-    range_floor_px: float = 0.01611
-    range_knee_px2: float = 0.658
-    range_rel_floor: float = 0.0
-    clipped_knee_px: float = 46.09
-    clipped_floor: float = 0.64
+    range_floor_px: float = 0.02006
+    range_knee_px2: float = 0.5775
+    range_rel_floor: float = 3.143e-06
+    clipped_knee_px: float = 16.14
+    clipped_floor: float = 1.228
     clipped_share: float = 0.1
-    bearing_floor_px: float = 0.01087
-    bearing_knee_px2: float = 0.3501
-    bearing_floor_rad: float = 0.0
-    tiev_bearing_floor_px: float = 0.01149
-    tiev_bearing_knee_px2: float = 0.7051
-    tiev_bearing_floor_rad: float = 0.0
-    tilt_floor_px: float = 0.02411
-    tilt_knee_px2: float = 0.8862
-    tilt_perspective: float = 0.4397
-    roll_floor_px: float = 0.01794
-    roll_knee_px2: float = 2.189
-    flip_logit_offset: float = 4.021
-    flip_logit_ambiguity: float = 1.796
-    flip_logit_size: float = -1.691
+    bearing_floor_px: float = 0.008039
+    bearing_knee_px2: float = 0.6166
+    bearing_floor_rad: float = 1.641e-07
+    tiev_bearing_floor_px: float = 0.01243
+    tiev_bearing_knee_px2: float = 0.7892
+    tiev_bearing_floor_rad: float = 2.818e-09
+    tilt_floor_px: float = 0.02267
+    tilt_knee_px2: float = 1.2
+    tilt_perspective: float = 0.3853
+    roll_floor_px: float = 0.0186
+    roll_knee_px2: float = 2.263
+    flip_logit_offset: float = 2.339
+    flip_logit_ambiguity: float = 2.593
+    flip_logit_size: float = -0.9501
+    contrast_ref: float = 170.0
+    contrast_power: float = 0.2495
     scale: float = 1.0
 
 
@@ -115,9 +125,18 @@ def flip_probability(pose: TagPose, s: float, model: TagNoiseModel = TagNoiseMod
     return 1.0 / (1.0 + math.exp(-z)) if z > -50.0 else 0.0
 
 
+def contrast_factor(contrast: float, model: TagNoiseModel = TagNoiseModel()) -> float:
+    """What every pixel error is multiplied by for a tag whose quiet zone and black border
+    differ by ``contrast`` grey levels: ``(contrast_ref / contrast) ^ contrast_power``
+    (contrast clipped to 20-255; 1 when unknown)."""
+    if not math.isfinite(contrast) or model.contrast_power == 0.0:
+        return 1.0
+    return (model.contrast_ref / min(max(contrast, 20.0), 255.0)) ** model.contrast_power
+
+
 def camera_covariance(
     pose: TagPose, s: float, f: float, model: TagNoiseModel = TagNoiseModel(),
-    clipped: float = 0.0, min_side: float | None = None,
+    clipped: float = 0.0, min_side: float | None = None, contrast: float = math.nan,
 ) -> FloatArray:
     """(6, 6) covariance of ``(position, rotation)`` in the camera frame (m, rad).
 
@@ -130,12 +149,14 @@ def camera_covariance(
             ``model.clipped_share`` every pixel error grows by
             ``sqrt(1 + clipped_floor^2 + (clipped_knee_px / min_side)^2)``.
         min_side: the tag's shortest side in the image, px (``s`` if None).
+        contrast: grey levels between the tag's quiet zone and black border
+            (:func:`contrast_factor`; NaN: unknown, no factor).
     """
     p = np.asarray(pose.position, dtype=float)
     R = np.asarray(pose.rotation, dtype=float)
     rho = float(np.linalg.norm(p))
     u = p / rho
-    k = model.scale
+    k = model.scale * contrast_factor(contrast, model)
     if clipped > model.clipped_share:
         knee = model.clipped_knee_px / (s if min_side is None else min_side)
         k *= math.sqrt(1.0 + model.clipped_floor**2 + knee**2)
@@ -199,6 +220,7 @@ def vehicle_covariance(
 __all__ = [
     "TagNoiseModel",
     "camera_covariance",
+    "contrast_factor",
     "flip_probability",
     "min_side_px",
     "side_px",

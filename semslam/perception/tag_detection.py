@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
-from semslam.perception.tag_refinement import refine_corners
+from semslam.perception.tag_refinement import border_contrast, refine_corners_and_count
 from semslam.types import TagFamily
 
 log = logging.getLogger(__name__)
@@ -94,6 +94,12 @@ class TagDetection:
         clipped: share of the pixels in the tag's bounding box at the top of the grey
             scale (>= 250): an overexposed tag's white bleeds into its black square,
             which then looks smaller (PnP ranges up to 1.5 % long).
+        contrast: grey levels between the white quiet zone and the black border
+            (:func:`~semslam.perception.tag_refinement.border_contrast`; NaN: unknown).
+        ring_cells: per side, the white data cells at which the corner refinement read
+            the border ring (:func:`~semslam.perception.tag_refinement.refine_corners_and_count`);
+            empty when the corners were not refined (refinement off, or a family without
+            the ring).
     """
 
     family: TagFamily
@@ -104,6 +110,18 @@ class TagDetection:
     decision_margin: float
     image_size: tuple[int, int] = (0, 0)
     clipped: float = 0.0
+    contrast: float = float("nan")
+    ring_cells: tuple[int, ...] = ()
+
+    @property
+    def ring_sides(self) -> int:
+        """Sides read on the border ring (0-4); -1 when the corners were not refined."""
+        return sum(n > 0 for n in self.ring_cells) if self.ring_cells else -1
+
+    @property
+    def ring_cells_min(self) -> int:
+        """The fewest white data cells read along one side; -1 when not refined."""
+        return min(self.ring_cells) if self.ring_cells else -1
 
     @property
     def border_distance(self) -> float:
@@ -247,12 +265,15 @@ def detect_tags(
         if d.hamming > settings.max_hamming or d.decision_margin < settings.min_decision_margin:
             continue
         corners = np.asarray(d.corners, dtype=float) - APRILTAG_PIXEL_OFFSET
+        ring_cells: tuple[int, ...] = ()
         if settings.ring_refinement and fam in RING_FAMILIES:
-            corners = refine_corners(gray, corners, CELLS[fam])
+            corners, ring_cells = refine_corners_and_count(gray, corners, CELLS[fam])
+        contrast = (border_contrast(gray, corners, CELLS[fam]) if fam in RING_FAMILIES
+                    else float("nan"))
         out.append(
             TagDetection(fam, int(d.tag_id), corners, quad_centre(corners), int(d.hamming),
                          float(d.decision_margin), (gray.shape[1], gray.shape[0]),
-                         clipped_share(gray, corners))
+                         clipped_share(gray, corners), contrast, ring_cells)
         )
     return tuple(sorted(out, key=lambda t: t.tag_id))
 

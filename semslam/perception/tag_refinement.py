@@ -120,10 +120,21 @@ def refine_corners(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> 
         cells: code cells across the black square (tag36h11: 8), the border ring one of
             them on each side.
     """
+    return refine_corners_and_count(gray, corners, cells)[0]
+
+
+def refine_corners_and_count(
+    gray: NDArray[np.uint8], corners: FloatArray, cells: int
+) -> tuple[FloatArray, tuple[int, int, int, int]]:
+    """:func:`refine_corners` and, per side (AprilTag's order: bottom, right, top, left of
+    the upright tag), the white data cells read on the ring (all 0 when the corners came
+    back unchanged). A side with none keeps AprilTag's edge, moved by the others' mean
+    offset: the bleed that the ring cancels is still in it; a side read at one cell is
+    placed by that cell's three profiles alone."""
     c = np.asarray(corners, dtype=float)
     half = cells / 2.0
     if cells < 4 or c.shape != (4, 2) or not np.isfinite(c).all():
-        return c
+        return c, (0, 0, 0, 0)
     grid = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
     H = cv2.getPerspectiveTransform(grid.astype(np.float32), c.astype(np.float32))
     H = H.astype(np.float64)
@@ -137,7 +148,7 @@ def refine_corners(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> 
     data, ring, quiet = np.moveaxis(_sample(gray, H, probes), 2, 0)
     white = (data > 0.5 * (ring + quiet)) & (quiet - ring >= _MIN_CONTRAST)
     if not white.any():
-        return c
+        return c, (0, 0, 0, 0)
     cell_px = float(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).max()) / cells
     n = max(45, int(math.ceil(2.0 * _SPAN * cell_px / _SAMPLE_PX)) + 1)
     positions = np.linspace(middle - _SPAN, middle + _SPAN, n)
@@ -162,11 +173,11 @@ def refine_corners(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> 
             lines.append(None)
     known = [ln for ln in lines if ln is not None]
     if not known:
-        return c
+        return c, (0, 0, 0, 0)
     mean_offset = float(np.mean([ln[0] for ln in known]))
     lines = [ln if ln is not None else (mean_offset, 0.0) for ln in lines]
     if max(abs(o) + abs(b) * half for o, b in lines) > _MAX_SHIFT:
-        return c
+        return c, (0, 0, 0, 0)
     # side k's middle line in the tag grid: (n_k - b_k t_k) . X = middle + o_k; corner i
     # (grid order) where sides i - 1 and i meet
     middle_square = np.empty((4, 2))
@@ -181,7 +192,34 @@ def refine_corners(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> 
     # the outer square from the ring's middle square by the homography between them
     H_ring = cv2.getPerspectiveTransform((grid * (middle / half)).astype(np.float32),
                                          ring_img.astype(np.float32)).astype(np.float64)
-    return cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H_ring).reshape(4, 2)
+    read = tuple(int(np.count_nonzero(side == k)) for k in range(4))
+    return cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H_ring).reshape(4, 2), read
 
 
-__all__ = ["refine_corners", "ring_midpoints"]
+def border_contrast(gray: NDArray[np.uint8], corners: FloatArray, cells: int) -> float:
+    """Grey levels between the tag's white quiet zone and its black border ring: the
+    medians of samples at the middle of the ring and of the quiet zone, one per border
+    cell along each side (tag coordinates through the corners' homography). Noise moves
+    an edge by (noise / contrast) px, so a tag that stands out less has noisier corners.
+
+    Args:
+        gray: (H, W) uint8 image.
+        corners: (4, 2) corners of the black square (as :func:`refine_corners`).
+        cells: code cells across the black square (tag36h11: 8).
+    """
+    c = np.asarray(corners, dtype=float)
+    if cells < 4 or c.shape != (4, 2) or not np.isfinite(c).all():
+        return float("nan")
+    half = cells / 2.0
+    grid = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
+    H = cv2.getPerspectiveTransform(grid.astype(np.float32), c.astype(np.float32))
+    along = np.arange(-half + 0.5, half, 1.0)
+    tangents = np.stack([-_NORMALS[:, 1], _NORMALS[:, 0]], axis=1)
+    base = along[None, :, None] * tangents[:, None, :]
+    nrm = _NORMALS[:, None, :]
+    ring = _sample(gray, H.astype(np.float64), base + (half - 0.5) * nrm)
+    quiet = _sample(gray, H.astype(np.float64), base + (half + 0.5) * nrm)
+    return float(np.median(quiet) - np.median(ring))
+
+
+__all__ = ["border_contrast", "refine_corners", "refine_corners_and_count", "ring_midpoints"]

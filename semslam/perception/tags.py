@@ -67,17 +67,24 @@ class TagSettings:
         max_flip_probability: nor are tags whose other IPPE solution is right with a
             larger probability (:func:`~semslam.perception.tag_covariance.flip_probability`):
             a flipped pose is off by about twice the viewing angle in yaw, which no
-            Gaussian covariance can say without overstating every other tag's. 0.01 was
-            chosen on the calibration sweep with AprilTag's corners (seed 11: 1 of 13
-            flips kept); with the ring-refined corners and the refitted flip model it keeps
-            1,267 of its 1,694 usable views and 2 of their 15 flips (0.005: 1,147 and
-            none, which made the NEES no better; BENCHMARKS.md).
+            Gaussian covariance can say without overstating every other tag's. 0.005 is
+            the largest cut that keeps none of the calibration sweep's flips (seed 11,
+            refitted flip model: 0 of 12; 0.01 kept 3, and a flip's NEES is in the
+            hundreds, so one of them moves the mean of a drive's 60 observations by 5).
         range_limit: tags farther from the camera (m) are not turned into observations.
         min_side_px: smaller tags (square root of the image area, px) are not turned into
             observations: below about 18 px the corners move inwards by up to 1 px (the
             range comes out long) and range errors have heavy tails (simulator).
         min_border_cells: tags closer to the image border than this many code cells
             (their white quiet zone cut off) are not turned into observations.
+        full_ring: refined tags whose border ring could not be read on all four sides
+            (a code with no white cell along a side, or a ring not read at all) are not
+            turned into observations: such a side keeps AprilTag's edge and the
+            overexposure bleed in it, and the covariance model, calibrated on fully read
+            tags, does not describe them (24 of the 587 tag36h11 codes; simulated drives:
+            mean NEES 42 over 8 such observations against 3.1 for the rest;
+            BENCHMARKS.md). Tags whose corners
+            were not refined (``ring_sides`` -1) are kept.
         detector: AprilTag detector settings.
         noise: the covariance model.
     """
@@ -87,10 +94,11 @@ class TagSettings:
     sizes: Mapping[int, float] = field(default_factory=dict)
     variant: PositionVariant = PositionVariant.PNP
     max_ambiguity: float = 0.5
-    max_flip_probability: float = 0.01
+    max_flip_probability: float = 0.005
     range_limit: float = 20.0
     min_side_px: float = 18.0
     min_border_cells: float = 1.0
+    full_ring: bool = True
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     noise: TagNoiseModel = field(default_factory=TagNoiseModel)
 
@@ -149,7 +157,7 @@ def estimate_tag(
     return TagEstimate(detection, size, corners, pose, s,
                        flip_probability(pose, s, settings.noise),
                        camera_covariance(pose, s, f, settings.noise, detection.clipped,
-                                         min_side_px(corners)))
+                                         min_side_px(corners), detection.contrast))
 
 
 def estimate_tags(
@@ -190,9 +198,11 @@ def to_observations(
 def usable(est: TagEstimate, settings: TagSettings = TagSettings()) -> bool:
     """Does ``est`` make an observation: unambiguous (``max_ambiguity``,
     ``max_flip_probability``), near enough (``range_limit``), large enough
-    (``min_side_px``) and clear of the image border (``min_border_cells``)?"""
+    (``min_side_px``), clear of the image border (``min_border_cells``) and, if refined,
+    read on all four sides of its ring (``full_ring``)?"""
     det = est.detection
-    return (est.pose.ambiguity <= settings.max_ambiguity
+    return ((not settings.full_ring or det.ring_sides in (-1, 4))
+            and est.pose.ambiguity <= settings.max_ambiguity
             and est.flip_probability <= settings.max_flip_probability
             and est.range <= settings.range_limit
             and est.side_px >= settings.min_side_px

@@ -16,7 +16,9 @@ y down, z forward, metres), ``rotation`` (3 x 3, camera from tag; tag x right, y
 z into the tag), ``range`` (m), ``ambiguity`` (best / other IPPE reprojection error),
 ``reprojection_error_px``, ``alternative`` (the other IPPE solution), ``flip_probability``,
 ``covariance`` (6 x 6 over x, y, z (m) and the rotation error about the camera's x, y, z
-(rad)), ``hamming`` and ``decision_margin``.
+(rad)), ``hamming``, ``decision_margin``, ``contrast`` (grey levels between the quiet zone
+and the black border; null when unknown) and ``ring_sides_read`` (sides of the border
+ring the corner refinement read, 0-4; -1 when not refined).
 """
 
 from __future__ import annotations
@@ -94,6 +96,8 @@ def detection_json(est: TagEstimate) -> dict:
         "covariance": [[float(f"{v:.6g}") for v in row] for row in est.covariance],
         "hamming": det.hamming,
         "decision_margin": round(det.decision_margin, 2),
+        "contrast": round(det.contrast, 1) if math.isfinite(det.contrast) else None,
+        "ring_sides_read": det.ring_sides,
     }
 
 

@@ -11,7 +11,12 @@ import pytest
 from scipy.stats import norm
 
 from semslam.perception.tag_detection import DetectorSettings, detect_tags
-from semslam.perception.tag_refinement import refine_corners, ring_midpoints
+from semslam.perception.tag_refinement import (
+    border_contrast,
+    refine_corners,
+    refine_corners_and_count,
+    ring_midpoints,
+)
 
 SUPER = 4  # supersampling of the synthetic render
 
@@ -92,3 +97,29 @@ def test_unreadable_ring_leaves_the_corners_alone() -> None:
     # a quad half a cell off: the ring is not where the grid says, no side is trusted
     shifted = truth + np.array([[-6.0, 6.0], [6.0, 6.0], [6.0, -6.0], [-6.0, -6.0]])
     assert np.array_equal(refine_corners(img, shifted, 8), shifted)
+
+
+@pytest.mark.parametrize("gain", [0.5, 1.0])
+def test_border_contrast_is_white_minus_black(gain: float) -> None:
+    img, truth = render_tag(gain)
+    contrast = border_contrast(img, truth, 8)
+    assert contrast == pytest.approx(170.0 * gain, rel=0.08)  # white 200, black 30, blurred
+
+
+def test_border_contrast_of_a_bad_quad_is_nan() -> None:
+    img, _ = render_tag(1.0)
+    assert math.isnan(border_contrast(img, np.full((4, 2), np.nan), 8))
+
+
+def test_refinement_counts_the_white_cells_it_read_per_side() -> None:
+    img, truth = render_tag(1.0, tag_id=5)
+    aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    code = cv2.aruco.generateImageMarker(aruco, 5, 8) > 127  # 1 px per cell
+    inner = code[1:7, 1:7]  # the data cells; the ring is the outermost cell
+    expected = sorted(int(v) for v in (inner[0].sum(), inner[-1].sum(), inner[:, 0].sum(),
+                                       inner[:, -1].sum()))
+    corners, read = refine_corners_and_count(img, truth, 8)
+    assert sorted(read) == expected
+    assert np.array_equal(corners, refine_corners(img, truth, 8))
+    blank = np.full_like(img, 128)
+    assert refine_corners_and_count(blank, truth, 8)[1] == (0, 0, 0, 0)

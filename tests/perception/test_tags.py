@@ -16,7 +16,12 @@ from typer.testing import CliRunner
 from semslam.cli import app
 from semslam.config import load_config, with_overrides
 from semslam.geometry import inverse_transform_points, wrap_angle
-from semslam.perception.tag_covariance import vehicle_covariance, vehicle_pose_2d
+from semslam.perception.tag_covariance import (
+    TagNoiseModel,
+    camera_covariance,
+    vehicle_covariance,
+    vehicle_pose_2d,
+)
 from semslam.perception.tag_detection import (
     REFERENCE_SETTINGS,
     DetectorSettings,
@@ -153,6 +158,16 @@ def test_vehicle_covariance_is_the_first_order_propagation() -> None:
     cov6 = A @ A.T * 1e-3
     assert np.allclose(vehicle_covariance(R, cov6, CAM.T_vehicle_camera), J @ cov6 @ J.T,
                        rtol=1e-5, atol=1e-12)
+
+
+def test_a_tag_that_stands_out_less_gets_a_larger_covariance() -> None:
+    R, t = rot_y(math.radians(30.0)), np.array([0.5, 0.1, 8.0])
+    pose = estimate_pose(project(R, t), 0.5, K)
+    model = TagNoiseModel(contrast_ref=170.0, contrast_power=0.5)
+    bright, dim = (camera_covariance(pose, 40.0, 800.0, model, contrast=c) for c in (170, 85))
+    assert np.allclose(dim, 2.0**0.5 * 2.0**0.5 * bright)  # pixel errors x 2^0.5: variances x 2
+    unknown = camera_covariance(pose, 40.0, 800.0, model)  # NaN contrast: no factor
+    assert np.allclose(unknown, bright)
 
 
 # --------------------------------------------------------------------------- camera models
@@ -312,6 +327,7 @@ def test_tags_command_prints_poses_as_json(rendered, tmp_path: Path) -> None:
     (det,) = doc["images"][0]["detections"]
     assert det["family"] == "tag36h11" and det["id"] == 42
     assert np.array(det["corners"]).shape == (4, 2) and np.array(det["covariance"]).shape == (6, 6)
+    assert 20 < det["contrast"] <= 255 and det["ring_sides_read"] in (0, 1, 2, 3, 4)
     p, R = camera_pose_of_vehicle_tag(
         np.array([*inverse_transform_points(mTv, tag.mTt[:2]).ravel(), tag.mTt[2] - mTv[2]]),
         tag.height)
