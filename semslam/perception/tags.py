@@ -77,14 +77,12 @@ class TagSettings:
             range comes out long) and range errors have heavy tails (simulator).
         min_border_cells: tags closer to the image border than this many code cells
             (their white quiet zone cut off) are not turned into observations.
-        full_ring: refined tags whose border ring could not be read on all four sides
-            (a code with no white cell along a side, or a ring not read at all) are not
-            turned into observations: such a side keeps AprilTag's edge and the
-            overexposure bleed in it, and the covariance model, calibrated on fully read
-            tags, does not describe them (24 of the 587 tag36h11 codes; simulated drives:
-            mean NEES 42 over 8 such observations against 3.1 for the rest;
-            BENCHMARKS.md). Tags whose corners
-            were not refined (``ring_sides`` -1) are kept.
+        full_ring: also drop refined tags whose border ring could not be read on all
+            four sides (a code with no white cell along a side: 24 of the 587 tag36h11
+            codes). Off by default: their covariance is widened instead
+            (``TagNoiseModel.unread_side_factor``); dropping them made the NEES of the
+            simulated drives' tags consistent but lost a landmark, and the demo's map
+            with it went from 0.046 to 0.053 m (BENCHMARKS.md).
         detector: AprilTag detector settings.
         noise: the covariance model.
     """
@@ -98,7 +96,7 @@ class TagSettings:
     range_limit: float = 20.0
     min_side_px: float = 18.0
     min_border_cells: float = 1.0
-    full_ring: bool = True
+    full_ring: bool = False
     detector: DetectorSettings = field(default_factory=DetectorSettings)
     noise: TagNoiseModel = field(default_factory=TagNoiseModel)
 
@@ -157,7 +155,8 @@ def estimate_tag(
     return TagEstimate(detection, size, corners, pose, s,
                        flip_probability(pose, s, settings.noise),
                        camera_covariance(pose, s, f, settings.noise, detection.clipped,
-                                         min_side_px(corners), detection.contrast))
+                                         min_side_px(corners), detection.contrast,
+                                         detection.ring_sides))
 
 
 def estimate_tags(
@@ -198,8 +197,8 @@ def to_observations(
 def usable(est: TagEstimate, settings: TagSettings = TagSettings()) -> bool:
     """Does ``est`` make an observation: unambiguous (``max_ambiguity``,
     ``max_flip_probability``), near enough (``range_limit``), large enough
-    (``min_side_px``), clear of the image border (``min_border_cells``) and, if refined,
-    read on all four sides of its ring (``full_ring``)?"""
+    (``min_side_px``), clear of the image border (``min_border_cells``) and, with
+    ``full_ring``, read on all four sides of its ring?"""
     det = est.detection
     return ((not settings.full_ring or det.ring_sides in (-1, 4))
             and est.pose.ambiguity <= settings.max_ambiguity

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -128,6 +129,21 @@ def test_clear_tag_becomes_an_observation_at_its_vehicle_pose_and_far_ones_are_d
     assert to_observations([far], CAM, TagSettings(range_limit=20.0, min_side_px=10)) == ()
     assert len(to_observations([far], CAM, TagSettings(range_limit=30.0, min_side_px=10))) == 1
     assert to_observations([far], CAM, TagSettings(range_limit=30.0)) == ()  # 12.8 px < 18
+
+
+def test_a_code_with_an_unread_ring_side_is_widened_or_dropped() -> None:
+    vTt, height = np.array([9.0, 1.5, math.radians(200.0)]), 1.7
+    p, R = camera_pose_of_vehicle_tag(vTt, height)
+    det = fake_detection(project(R, p))
+    full = replace(det, ring_cells=(3, 4, 4, 3))
+    unread = replace(det, ring_cells=(4, 3, 2, 0))
+    assert full.ring_sides == 4 and unread.ring_sides == 3 and det.ring_sides == -1
+    (a,), (b,) = (to_observations([estimate_tag(d, CAM)], CAM) for d in (full, unread))
+    k = TagNoiseModel().unread_side_factor
+    assert k > 1 and np.allclose(b.covariance, k**2 * a.covariance)
+    strict = TagSettings(full_ring=True)
+    assert to_observations([estimate_tag(unread, CAM, strict)], CAM, strict) == ()
+    assert len(to_observations([estimate_tag(full, CAM, strict)], CAM, strict)) == 1
 
 
 def test_tag_cut_by_the_image_border_is_not_observed() -> None:
