@@ -119,11 +119,6 @@ class TagDetection:
         return sum(n > 0 for n in self.ring_cells) if self.ring_cells else -1
 
     @property
-    def ring_cells_min(self) -> int:
-        """The fewest white data cells read along one side; -1 when not refined."""
-        return min(self.ring_cells) if self.ring_cells else -1
-
-    @property
     def border_distance(self) -> float:
         """Pixels between the nearest corner and the image border (inf if unknown): a tag
         whose white quiet zone is cut by the border has biased corners."""

@@ -52,6 +52,7 @@ from semslam.geometry import FloatArray
 # the four sides of the tag in its own cell grid (x right, y up): outward normals in
 # AprilTag's corner order bottom-left -> bottom-right -> top-right -> top-left
 _NORMALS = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+_TANGENTS = np.stack([-_NORMALS[:, 1], _NORMALS[:, 0]], axis=1)  # along each side
 _TANGENT_OFFSETS = (-0.3, 0.0, 0.3)  # profiles per white data cell, cells from its centre
 _SPAN = 1.1  # the profile covers the ring's middle +- this many cells
 _SAMPLE_PX = 0.2  # spacing of the profile samples in the image, px (at least 45 a profile)
@@ -68,6 +69,15 @@ def _sample(gray: NDArray[np.uint8], H: FloatArray, pts: FloatArray) -> FloatArr
     out = cv2.remap(gray, uv[:, :1], uv[:, 1:], cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REPLICATE)
     return out.reshape(pts.shape[:-1]).astype(float)
+
+
+def _grid_homography(corners: FloatArray, cells: int) -> tuple[FloatArray, FloatArray]:
+    """The black square's corners in the tag's own cell grid (4, 2) and the homography
+    from that grid to the image, from the (4, 2) image ``corners``."""
+    half = cells / 2.0
+    grid = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
+    H = cv2.getPerspectiveTransform(grid.astype(np.float32), corners.astype(np.float32))
+    return grid, H.astype(np.float64)
 
 
 def ring_midpoints(profiles: FloatArray, positions: FloatArray) -> FloatArray:
@@ -135,12 +145,10 @@ def refine_corners_and_count(
     half = cells / 2.0
     if cells < 4 or c.shape != (4, 2) or not np.isfinite(c).all():
         return c, (0, 0, 0, 0)
-    grid = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
-    H = cv2.getPerspectiveTransform(grid.astype(np.float32), c.astype(np.float32))
-    H = H.astype(np.float64)
+    grid, H = _grid_homography(c, cells)
     middle = half - 0.5
     along = np.arange(-half + 1.5, half - 1.0, 1.0)  # centres of the data cells by a side
-    tangents = np.stack([-_NORMALS[:, 1], _NORMALS[:, 0]], axis=1)
+    tangents = _TANGENTS
     base = along[None, :, None] * tangents[:, None, :]  # (4, cells - 2, 2)
     nrm = _NORMALS[:, None, :]
     probes = np.stack([base + (half - 1.5) * nrm, base + middle * nrm,
@@ -211,14 +219,12 @@ def border_contrast(gray: NDArray[np.uint8], corners: FloatArray, cells: int) ->
     if cells < 4 or c.shape != (4, 2) or not np.isfinite(c).all():
         return float("nan")
     half = cells / 2.0
-    grid = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
-    H = cv2.getPerspectiveTransform(grid.astype(np.float32), c.astype(np.float32))
-    along = np.arange(-half + 0.5, half, 1.0)
-    tangents = np.stack([-_NORMALS[:, 1], _NORMALS[:, 0]], axis=1)
-    base = along[None, :, None] * tangents[:, None, :]
+    _, H = _grid_homography(c, cells)
+    along = np.arange(-half + 0.5, half, 1.0)  # every cell along a side
+    base = along[None, :, None] * _TANGENTS[:, None, :]
     nrm = _NORMALS[:, None, :]
-    ring = _sample(gray, H.astype(np.float64), base + (half - 0.5) * nrm)
-    quiet = _sample(gray, H.astype(np.float64), base + (half + 0.5) * nrm)
+    ring = _sample(gray, H, base + (half - 0.5) * nrm)
+    quiet = _sample(gray, H, base + (half + 0.5) * nrm)
     return float(np.median(quiet) - np.median(ring))
 
 
