@@ -378,6 +378,12 @@ def evaluate_detections(
     labels_dir: Annotated[
         Path, typer.Argument(metavar="LABELS_DIR", help="DMPR-PS labels, <image stem>.json.")
     ],
+    label_directions: Annotated[
+        bool,
+        typer.Option("--label-directions", help="Score the directions exactly as the labels "
+                     "give them (ps2.0 points a slot's second L junction along the entrance; "
+                     "by default it is turned to its separator, as semslam reports it)."),
+    ] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Marking-point and slot precision / recall with the ps2.0 metric (10 px, 30 deg)."""
@@ -385,7 +391,8 @@ def evaluate_detections(
     from semslam.reporting import print_metrics
 
     try:
-        metrics = evaluate_detection_folder(images_dir, labels_dir)
+        metrics = evaluate_detection_folder(images_dir, labels_dir,
+                                            separator_convention=not label_directions)
     except (SemslamError, OSError) as e:
         _fail(e)
     print_metrics("detection evaluation", metrics, json_output)

@@ -2,6 +2,7 @@
 detect, evaluate detections, accuracy, plan-tags."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -68,6 +69,19 @@ def test_evaluate_detections_scores_labelled_views(labelled_views):
     for key in ("point_precision", "point_recall", "slot_precision", "slot_recall"):
         assert 0.0 <= m[key] <= 1.0
     assert m["point_recall"] > 0.5  # the shipped model finds most points of simple views
+
+
+def test_evaluate_detections_reads_ps2_l_directions_in_the_separator_convention():
+    ps2 = Path("/work/shared/realdata/ps2.0-samples")
+    if not (ps2 / "labels").is_dir():
+        pytest.skip(f"{ps2} is absent")
+    args = ("evaluate", "detections", ps2 / "images", ps2 / "labels", "--json")
+    turned, raw = _run(*args), _run(*args, "--label-directions")
+    assert turned.exit_code == 0 and raw.exit_code == 0, turned.output + raw.output
+    m_turned, m_raw = json.loads(turned.stdout), json.loads(raw.stdout)
+    assert m_turned["labels_redirected"] == 8 and m_raw["labels_redirected"] == 0
+    assert m_turned["point_detections"] == m_raw["point_detections"]
+    assert m_turned["point_true_positives"] > m_raw["point_true_positives"]
 
 
 def test_evaluate_detections_refuses_a_folder_without_labels(tmp_path):

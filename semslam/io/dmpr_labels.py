@@ -17,8 +17,9 @@ same way.
 from __future__ import annotations
 
 import json
+import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,36 @@ class TopviewLabels:
     def slot_kinds(self) -> list[SlotKind]:
         """The slot type codes as :class:`~semslam.types.SlotKind` values."""
         return [SLOT_TYPES[int(s)] for s in self.slots[:, 2]]
+
+    def with_separator_directions(self, max_angle_deg: float = 45.0) -> TopviewLabels:
+        """These labels with every slot's entrance points directed along its separators
+        into the slot, as semslam's detector reports them.
+
+        ps2.0 (DMPR-PS) directs an L junction along one of its two arms: the separator
+        when the point is a slot's first entrance point, the entrance line towards the
+        first point when it is the second (741 of the 741 such points in the ps2.0
+        training labels; T junctions point along their separator). Each second point
+        that is an L directed within ``max_angle_deg`` of its first point takes the first
+        point's direction (a slot's separators are parallel), unless that one lies along
+        the entrance too.
+        """
+        directions = self.directions.copy()
+        limit = np.radians(max_angle_deg)
+        for i, j in np.asarray(self.slots, dtype=np.int64).reshape(-1, 4)[:, :2] - 1:
+            if self.shapes[j] != 1:
+                continue
+            dx, dy = self.points[i] - self.points[j]
+            along = math.atan2(dy, dx)  # from the second point towards the first
+            first_off_line = min(_angle_between(self.directions[i], along),
+                                 _angle_between(self.directions[i], along + math.pi)) > limit
+            if _angle_between(self.directions[j], along) <= limit and first_off_line:
+                directions[j] = self.directions[i]
+        return replace(self, directions=directions)
+
+
+def _angle_between(a: float, b: float) -> float:
+    """Unsigned angle between two directions, radians in [0, pi]."""
+    return abs((a - b + math.pi) % (2.0 * math.pi) - math.pi)
 
 
 def dmpr_labels_to_dict(labels: TopviewLabels, arm_length_px: float = 50.0) -> dict[str, Any]:

@@ -160,14 +160,21 @@ def evaluate_detection_folder(
     labels_dir: str | os.PathLike[str],
     perception: TopviewPerception | None = None,
     progress: Callable[[int, int], None] | None = None,
+    separator_convention: bool = True,
 ) -> dict[str, Any]:
     """Score the detectors on every image of ``images_dir`` that has a label file
     ``labels_dir/<stem>.json`` (DMPR-PS form) with the ps2.0 metric.
 
+    With ``separator_convention`` the labels' L junctions that ps2.0 directs along the
+    entrance are directed along their separator first, as semslam reports every point
+    (:meth:`~semslam.io.dmpr_labels.TopviewLabels.with_separator_directions`); without
+    it, the directions are scored as the files give them.
+
     Returns:
         ``point_precision``, ``point_recall``, ``slot_precision``, ``slot_recall``,
         ``shape_accuracy``, the pooled counts (``images`` among them), the median
-        milliseconds per stage, and the images without labels.
+        milliseconds per stage, the images without labels and ``labels_redirected``
+        (labelled points whose direction the convention changed).
 
     Raises:
         FormatError: a folder is missing, holds no labelled image, or a file is broken.
@@ -185,8 +192,11 @@ def evaluate_detection_folder(
     perception = perception or TopviewPerception(lines=False)
     total = DetectionCounts()
     timings: dict[str, list[float]] = {}
+    redirected = 0
     for k, path in enumerate(labelled):
-        labels = read_dmpr_labels(labels_dir / f"{path.stem}.json")
+        raw = read_dmpr_labels(labels_dir / f"{path.stem}.json")
+        labels = raw.with_separator_directions() if separator_convention else raw
+        redirected += int(np.count_nonzero(labels.directions != raw.directions))
         det = perception.detect(read_image(path))
         points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
         total += score_image(
@@ -210,6 +220,7 @@ def evaluate_detection_folder(
         **total.summary(),
         "median_ms": {k: round(statistics.median(v), 3) for k, v in timings.items()},
         "unlabelled_images": len(images) - len(labelled),
+        "labels_redirected": redirected,
     }
 
 

@@ -40,6 +40,27 @@ def test_one_mark_flat_form_and_no_slots() -> None:
     assert labels.points.shape == (1, 2) and labels.slots.shape == (0, 4)
 
 
+def test_second_l_junction_turned_to_its_separator() -> None:
+    # a row of two slots seen from above: entrance along +u, slots below (+v); ps2.0
+    # directs the last point, an L that is only a second point, along the entrance
+    # towards its first point; T junctions and first points along the separator (+v)
+    labels = dmpr_labels_from_dict({
+        "marks": [[100, 100, 100, 150, 1], [250, 100, 250, 150, 0], [400, 100, 350, 100, 1]],
+        "slots": [[1, 2, 1, 90], [2, 3, 1, 90]],
+    })
+    turned = labels.with_separator_directions()
+    np.testing.assert_allclose(turned.directions, [np.pi / 2] * 3, atol=1e-12)
+    np.testing.assert_allclose(labels.directions, [np.pi / 2, np.pi / 2, np.pi])  # unchanged
+    # an L second point directed along its separator already, or a T, is left alone
+    t_row = dmpr_labels_from_dict({"marks": [[100, 100, 100, 150, 0], [250, 100, 250, 150, 1]],
+                                   "slots": [1, 2, 1, 90]})
+    np.testing.assert_allclose(t_row.with_separator_directions().directions, [np.pi / 2] * 2)
+    # nothing to copy when the first point lies along the entrance itself
+    odd = dmpr_labels_from_dict({"marks": [[100, 100, 150, 100, 1], [250, 100, 200, 100, 1]],
+                                 "slots": [1, 2, 1, 90]})
+    np.testing.assert_allclose(odd.with_separator_directions().directions, [0.0, np.pi])
+
+
 def test_round_trip(tmp_path: Path) -> None:
     labels = TopviewLabels(
         points=np.array([[240.5, 57.8], [226.8, 387.9], [235.3, 227.6]]),
