@@ -50,14 +50,14 @@ def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
     return (np.asarray(points, float) + 0.5) * k - 0.5
 
 
-def _render_shard(args: tuple[list[int], int, int, str]) -> str:
-    from semslam.simulation.topview_samples import sample_topviews
+def _render_shard(args: tuple[list[int], int, int, str, bool]) -> str:
+    from semslam.simulation.topview_samples import PaintVariation, sample_topviews
 
-    seeds, per_world, seed, path = args
+    seeds, per_world, seed, path, vary = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
-    for s in sample_topviews(seeds, per_world, seed):
+    for s in sample_topviews(seeds, per_world, seed, paint=PaintVariation() if vary else None):
         a = s.annotation
         images.append(cv2.resize(s.image, (INPUT, INPUT), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
@@ -80,16 +80,20 @@ def _render_shard(args: tuple[list[int], int, int, str]) -> str:
 
 
 def render_dataset(
-    seeds: list[int], per_world: int, seed: int, cache: Path, workers: int
+    seeds: list[int], per_world: int, seed: int, cache: Path, workers: int,
+    vary_paint: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Rendered, resized training views and their labels (600 px coordinates)."""
+    """Rendered, resized training views and their labels (600 px coordinates); with
+    ``vary_paint`` the worlds' lines thinned and separators cut to stubs at random
+    (:class:`~semslam.simulation.topview_samples.PaintVariation`)."""
     cache.mkdir(parents=True, exist_ok=True)
-    key = hashlib.sha1(json.dumps([seeds, per_world, seed, INPUT]).encode()).hexdigest()[:10]
+    spec = [seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
+    key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
-        jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz")))
+        jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -114,9 +118,8 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
     for k, span in enumerate(args.train_worlds.split(",")):
         lo, hi = (int(v) for v in span.split(":"))
         seed = args.data_seed + 1000 * k
-        parts.append(
-            render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache, args.workers)
-        )
+        parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
+                                    args.workers, args.vary_paint))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -572,6 +575,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init", type=Path, default=None, help="start from these torch weights")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
+    p.add_argument("--vary-paint", action="store_true",
+                   help="training worlds with thinner lines and stub separators at random")
     p.add_argument("--threshold", type=float, default=None, help="point confidence (eval)")
     args = p.parse_args(argv)
     if not args.eval_only:

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from semslam.simulation.render_topview import TopviewAnnotation, TopviewRenderer
 from semslam.simulation.world import make_world
+from semslam.simulation.world_types import World
+from semslam.types import Marking
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +32,42 @@ class TopviewSample:
     world_seed: int
     mTv: np.ndarray
     render_seed: int
+
+
+@dataclass(frozen=True)
+class PaintVariation:
+    """Paint the simulator's garages do not have, for training data only: real garages
+    paint thinner lines and some draw a slot's separators as short stubs at the entrance
+    (ps2.0). Per world, with probability ``thin_share`` every line gets a width drawn from
+    ``thin_width`` (m), and independently with probability ``stub_share`` every separator
+    is cut to a length drawn from ``stub_length`` (m) from its junction. The junctions, and
+    so the labels, stay where they are."""
+
+    thin_share: float = 0.5
+    thin_width: tuple[float, float] = (0.05, 0.10)
+    stub_share: float = 0.3
+    stub_length: tuple[float, float] = (0.3, 0.8)
+
+
+def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator) -> World:
+    """``world`` with its line markings varied as ``variation`` says (see there)."""
+    width = rng.uniform(*variation.thin_width) if rng.random() < variation.thin_share else None
+    stub = rng.uniform(*variation.stub_length) if rng.random() < variation.stub_share else None
+    if width is None and stub is None:
+        return world
+    starts = [(np.asarray(p.position, float), p.direction) for p in world.marking_points]
+    out = []
+    for m in world.markings:
+        a, b = np.asarray(m.a, float), np.asarray(m.b, float)
+        d = b - a
+        length = float(np.hypot(*d))
+        heading = math.atan2(d[1], d[0])
+        separator = any(np.hypot(*(a - q)) < 1e-6 and abs(math.remainder(heading - t, math.tau))
+                        < 1e-6 for q, t in starts)  # from a junction along its direction
+        if stub is not None and separator and length > stub:
+            b = a + d * (stub / length)
+        out.append(Marking(a, b, m.width if width is None else width))
+    return replace(world, markings=tuple(out))
 
 
 def random_aisle_pose(world, rng: np.random.Generator) -> np.ndarray:
@@ -57,15 +95,19 @@ def sample_topviews(
     per_world: int,
     seed: int,
     presets: tuple[str, ...] = ("garage", "small"),
+    paint: PaintVariation | None = None,
 ) -> Iterator[TopviewSample]:
-    """``per_world`` random top views from each world seed (preset drawn per world).
+    """``per_world`` random top views from each world seed (preset drawn per world), the
+    worlds' paint varied by ``paint`` (training data; its draws do not move the poses).
 
-    Deterministic in (world_seeds, per_world, seed, presets).
+    Deterministic in (world_seeds, per_world, seed, presets, paint).
     """
     rng = np.random.default_rng(seed)
     for ws in world_seeds:
         preset = presets[int(rng.integers(len(presets)))]
         world = make_world(preset, int(ws))
+        if paint is not None:
+            world = vary_paint(world, paint, np.random.default_rng([seed, int(ws), 7]))
         renderer = TopviewRenderer(world)
         for _ in range(per_world):
             mTv = random_aisle_pose(world, rng)
@@ -74,4 +116,4 @@ def sample_topviews(
             yield TopviewSample(image, annotation, preset, int(ws), mTv, rseed)
 
 
-__all__ = ["TopviewSample", "random_aisle_pose", "sample_topviews"]
+__all__ = ["PaintVariation", "TopviewSample", "random_aisle_pose", "sample_topviews", "vary_paint"]

@@ -1,0 +1,49 @@
+import math
+
+import numpy as np
+
+from semslam.simulation.topview_samples import PaintVariation, sample_topviews, vary_paint
+from semslam.simulation.world import make_world
+
+
+def _length(m) -> float:
+    return float(np.hypot(*(np.asarray(m.b, float) - np.asarray(m.a, float))))
+
+
+def test_vary_paint_thins_lines_and_cuts_separators_to_stubs() -> None:
+    world = make_world("small", 3)
+    varied = vary_paint(world, PaintVariation(thin_share=1.0, stub_share=1.0,
+                                              stub_length=(0.5, 0.5)), np.random.default_rng(0))
+    assert len(varied.markings) == len(world.markings)
+    assert all(0.05 <= m.width <= 0.10 for m in varied.markings)
+    starts = {(round(float(p.position[0]), 6), round(float(p.position[1]), 6)): p.direction
+              for p in world.marking_points}
+    cut = 0
+    for before, after in zip(world.markings, varied.markings, strict=True):
+        np.testing.assert_array_equal(after.a, before.a)
+        key = (round(float(before.a[0]), 6), round(float(before.a[1]), 6))
+        d = np.asarray(before.b, float) - np.asarray(before.a, float)
+        is_separator = key in starts and abs(
+            math.remainder(math.atan2(d[1], d[0]) - starts[key], math.tau)) < 1e-6
+        if is_separator and _length(before) > 0.5:
+            assert math.isclose(_length(after), 0.5, abs_tol=1e-9)
+            cut += 1
+        else:
+            np.testing.assert_array_equal(after.b, before.b)
+    assert cut == len(world.marking_points)  # every junction's separator
+    # the labels are the junctions, untouched
+    assert varied.marking_points == world.marking_points
+
+
+def test_vary_paint_never_is_the_same_world_and_poses_do_not_move() -> None:
+    world = make_world("small", 3)
+    assert vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0),
+                      np.random.default_rng(0)) is world
+    plain = list(sample_topviews([5, 6], 2, 9))
+    varied = list(sample_topviews([5, 6], 2, 9, paint=PaintVariation(1.0, (0.05, 0.05), 1.0)))
+    for a, b in zip(plain, varied, strict=True):
+        np.testing.assert_array_equal(a.mTv, b.mTv)
+        np.testing.assert_array_equal(a.annotation.points, b.annotation.points)
+        if len(a.annotation.points):  # junctions in view: their paint differs
+            assert not np.array_equal(a.image, b.image)
+    assert sum(len(a.annotation.points) > 0 for a in plain) >= 1
