@@ -6,7 +6,9 @@ imports are lazy so ``semslam --help`` stays fast.
 
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -39,6 +41,54 @@ def _fail(error: Exception) -> None:
         message = str(error)
     typer.echo(f"semslam: error: {message}", err=True)
     raise typer.Exit(2)
+
+
+def _output_path(text: str, option: str) -> Path:
+    if not text.strip():
+        raise SemslamError(f"{option}: empty path")
+    return Path(text)
+
+
+def _check_writable_folder(folder: Path, option: str, text: str) -> None:
+    """``folder`` is, or can be created as, a folder we can write in (one line if not)."""
+    existing = folder
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    if not os.path.lexists(existing):  # "." is gone: the working folder was removed
+        existing = Path(os.path.abspath(folder))
+        while not os.path.lexists(existing) and existing != existing.parent:
+            existing = existing.parent
+    if not existing.is_dir():
+        raise SemslamError(f"{option} {text}: {existing}: is a file, not a folder")
+    try:  # a probe, not os.access: it also answers for root and read-only file systems
+        fd, probe = tempfile.mkstemp(prefix=".semslam-write-test-", dir=existing)
+    except OSError:
+        raise SemslamError(f"{option} {text}: cannot write in {existing}") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def _output_file(text: str, option: str = "-o") -> Path:
+    """Before any work: ``text`` names a file that can be written, or a one-line error."""
+    path = _output_path(text, option)
+    if path.is_dir():
+        raise SemslamError(f"{option} {text}: is a folder, not a file")
+    _check_writable_folder(path.parent, option, text)
+    return path
+
+
+def _output_folder(text: str, option: str = "-o") -> Path:
+    """Before any work: ``text`` names a folder that exists or can be created and written."""
+    path = _output_path(text, option)
+    if os.path.lexists(path) and not path.is_dir():
+        raise SemslamError(f"{option} {text}: is a file, not a folder")
+    _check_writable_folder(path, option, text)
+    return path
+
+
+def _at_least(value: int, least: int, option: str) -> None:
+    if value < least:
+        raise SemslamError(f"{option}: must be at least {least}, got {value}")
 
 
 def _version(value: bool) -> None:
@@ -78,6 +128,9 @@ def simulate(
     from semslam.reporting import print_simulation_summary
 
     try:
+        _at_least(seed, 0, "--seed")
+        _at_least(drive, 0, "--drive")
+        _output_folder(str(out_dir), "OUT_DIR")
         summary = run(out_dir, preset.value, seed, drive, images, load_config(config), progress)
     except (SemslamError, OSError) as e:
         _fail(e)
@@ -108,6 +161,8 @@ def demo(
     from semslam.reporting import print_metrics
 
     try:
+        _at_least(seed, 0, "--seed")
+        _output_folder(str(out_dir), "OUT_DIR")
         results = run_demo(out_dir, load_config(config), preset.value, seed, progress,
                            log=lambda m: typer.echo(m, err=True))
     except (SemslamError, OSError) as e:
@@ -124,7 +179,9 @@ def demo(
 @app.command("map")
 def map_command(
     drive: Annotated[Path, typer.Argument(help="Drive folder to map.")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Map file to write (JSON).")],
+    output: Annotated[
+        str, typer.Option("-o", "--output", metavar="PATH", help="Map file to write (JSON).")
+    ],
     observations: Annotated[
         ObservationSource, typer.Option(help="Which observations to map from.")
     ] = ObservationSource.noisy,
@@ -139,14 +196,18 @@ def map_command(
 ) -> None:
     """Build the semantic map of a drive: slots with IDs and tags on a robust factor graph."""
     from semslam.config import load_config, with_overrides
-    from semslam.pipeline.mapping import build_map
+    from semslam.pipeline.mapping import build_map, sibling_paths
     from semslam.reporting import print_map_summary
 
     try:
+        out = _output_file(output)
+        if out in sibling_paths(out):
+            raise SemslamError(f"-o {output}: a file written beside the map would replace it; "
+                               "name the map .json")
         cfg = with_overrides(
             load_config(config), mapping={"optimizer": optimizer, "robust": robust}
         )
-        summary = build_map(drive, output, observations.value, cfg, progress)
+        summary = build_map(drive, out, observations.value, cfg, progress)
     except (SemslamError, OSError) as e:
         _fail(e)
     print_map_summary(summary)
@@ -157,7 +218,8 @@ def localize(
     drive: Annotated[Path, typer.Argument(help="Drive folder to localize.")],
     map_path: Annotated[Path, typer.Option("--map", help="Map from `semslam map` (JSON).")],
     output: Annotated[
-        Path, typer.Option("-o", "--output", help="Trajectory to write (TUM; a .csv beside it).")
+        str, typer.Option("-o", "--output", metavar="PATH",
+                          help="Trajectory to write (TUM; a .csv beside it).")
     ],
     init: Annotated[
         str | None,
@@ -174,12 +236,20 @@ def localize(
 ) -> None:
     """Track a drive against a map, frame by frame: pose, covariance and status."""
     from semslam.config import load_config, with_overrides
-    from semslam.pipeline.localize import localize_drive
+    from semslam.pipeline.localize import localize_drive, parse_init
     from semslam.reporting import print_localize_summary
 
     try:
+        out = _output_file(output)
+        track = out.with_suffix(".csv")
+        if track == out:
+            raise SemslamError(f"-o {output}: the per-frame track CSV goes to {track} too; "
+                               "name the trajectory .tum")
+        if track.is_dir():
+            raise SemslamError(f"-o {output}: {track} (the per-frame track) is a folder")
+        parse_init(init)
         cfg = with_overrides(load_config(config), localization={"update": update})
-        summary = localize_drive(drive, map_path, output, observations.value, init, cfg, progress)
+        summary = localize_drive(drive, map_path, out, observations.value, init, cfg, progress)
     except (SemslamError, OSError) as e:
         _fail(e)
     print_localize_summary(summary)
@@ -242,7 +312,7 @@ def tags(
 def detect(
     images: Annotated[list[Path], typer.Argument(metavar="IMAGE...", help="Top-view images.")],
     overlay: Annotated[
-        Path | None,
+        str | None,
         typer.Option(metavar="DIR", help="Write each image with its detections drawn."),
     ] = None,
     lines: Annotated[bool, typer.Option(help="Also find painted lines (Houben).")] = True,
@@ -255,7 +325,8 @@ def detect(
     from semslam.reporting import print_metrics
 
     try:
-        result = detect_files(images, overlay, lines=lines)
+        overlay_dir = None if overlay is None else _output_folder(overlay, "--overlay")
+        result = detect_files(images, overlay_dir, lines=lines)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:
@@ -279,7 +350,9 @@ class RobustMode(StrEnum):
 @app.command()
 def optimize(
     graph: Annotated[Path, typer.Argument(metavar="GRAPH.g2o", help="2D g2o pose graph.")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Optimised graph to write.")],
+    output: Annotated[
+        str, typer.Option("-o", "--output", metavar="PATH", help="Optimised graph to write.")
+    ],
     robust: Annotated[
         RobustMode, typer.Option(help="maxmix: EDGE_SE2_MIXTURE as max-mixtures; none: LS.")
     ] = RobustMode.maxmix,
@@ -290,7 +363,8 @@ def optimize(
     from semslam.reporting import print_metrics
 
     try:
-        summary = optimize_g2o_file(graph, output, robust.value)
+        out = _output_file(output)
+        summary = optimize_g2o_file(graph, out, robust.value)
     except (SemslamError, OSError) as e:
         _fail(e)
     if not json_output:
@@ -441,8 +515,8 @@ class HofmannGrade(StrEnum):
 @app.command()
 def accuracy(
     map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
-    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
-                                         help="Folder for accuracy.json and accuracy_map.png.")],
+    output: Annotated[str, typer.Option("-o", "--output", metavar="DIR",
+                                        help="Folder for accuracy.json and accuracy_map.png.")],
     route: Annotated[
         Path | None, typer.Option(metavar="TRAJ.tum", help="A route to predict along.")
     ] = None,
@@ -461,7 +535,8 @@ def accuracy(
     from semslam.reporting import print_metrics
 
     try:
-        result = predicted_accuracy(map_path, output, route, grade.value, grid_step, threshold)
+        out = _output_folder(output)
+        result = predicted_accuracy(map_path, out, route, grade.value, grid_step, threshold)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:
@@ -487,8 +562,8 @@ def _m(value: float | None) -> str:
 def plan_tags_command(
     map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
     route: Annotated[Path, typer.Option(metavar="TRAJ.tum", help="The route cars drive.")],
-    output: Annotated[Path, typer.Option("-o", "--output", metavar="DIR",
-                                         help="Folder for tag_plan.json and tag_plan.png.")],
+    output: Annotated[str, typer.Option("-o", "--output", metavar="DIR",
+                                        help="Folder for tag_plan.json and tag_plan.png.")],
     count: Annotated[int, typer.Option(help="How many tags to propose.")] = 5,
     grade: Annotated[
         HofmannGrade, typer.Option(help="Odometry / IMU grade (Hofmann).")
@@ -508,7 +583,8 @@ def plan_tags_command(
     from semslam.reporting import print_metrics
 
     try:
-        result = plan_tags(map_path, route, output, count, grade.value, keep_existing,
+        out = _output_folder(output)
+        result = plan_tags(map_path, route, out, count, grade.value, keep_existing,
                            random_trials=random_trials)
     except (SemslamError, OSError) as e:
         _fail(e)
@@ -517,8 +593,10 @@ def plan_tags_command(
         return
     rows: dict[str, object] = {}
     random = [None, *result["random"]["steps"]]
-    for step, even, rand in zip(result["greedy"], [None, *result["evenly_spread"]], random,
-                                strict=True):
+    evenly = [None, *result["evenly_spread"]]
+    for n, step in enumerate(result["greedy"]):
+        even = evenly[n] if n < len(evenly) else None
+        rand = random[n] if n < len(random) else None
         where = "" if step["tag"] is None else " at ({:.1f}, {:.1f})".format(*step["tag"][:2])
         spread = "" if even is None else f"; evenly spread {_m(even['worst_m'])}"
         if rand is not None:
@@ -542,6 +620,7 @@ def bench(
     from semslam.reporting import print_metrics
 
     try:
+        _at_least(frames, 1, "--frames")
         result = run_bench(load_config(config), frames, large,
                            log=lambda m: typer.echo(m, err=True))
     except (SemslamError, OSError) as e:

@@ -10,11 +10,13 @@ prints the result; every run writes it beside its outputs.
 from __future__ import annotations
 
 import json
+import os
+import re
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
 
@@ -75,11 +77,23 @@ class DriveConfig(_Section):
     accel: float = Field(0.6, gt=0, description="longitudinal limit, m/s^2")
     turn_radius: float = Field(4.0, gt=0, description="corner fillet radius, m")
     lane_offset: float = Field(1.5, ge=0, description="right of the aisle centre line, m")
-    odometry_rate: float = Field(50.0, gt=0, description="wheel speed + gyro samples, Hz")
-    frame_rate: float = Field(10.0, gt=0, description="camera frames and observations, Hz")
+    odometry_rate: float = Field(
+        50.0, gt=0, le=1000, description="wheel speed + gyro samples, Hz (at most 1000)"
+    )
+    frame_rate: float = Field(
+        10.0, gt=0, le=100, description="camera frames and observations, Hz (at most 100)"
+    )
     max_duration: float | None = Field(
         None, gt=0, description="stop the drive after this many seconds (None: whole route)"
     )
+
+    @model_validator(mode="after")
+    def _speeds_in_order(self) -> DriveConfig:
+        if self.min_speed > self.max_speed:
+            raise ValueError(
+                f"min_speed ({self.min_speed:g}) must be <= max_speed ({self.max_speed:g})"
+            )
+        return self
 
 
 class RenderConfig(_Section):
@@ -324,13 +338,45 @@ def load_config(path: Path | None = None) -> SemslamConfig:
             raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: a config file holds one JSON object")
+    return _build(data, str(path) if path is not None else "configuration")
+
+
+_ENV_PREFIX = "SEMSLAM_"
+
+
+def _environment_variable(loc: tuple[Any, ...]) -> str | None:
+    """The SEMSLAM_ variable that set the field at ``loc`` (or a section holding it),
+    as spelt in the environment; None when no variable did."""
+    names = {name.upper(): name for name in os.environ if name.upper().startswith(_ENV_PREFIX)}
+    parts = [str(p).upper() for p in loc]
+    for n in range(len(parts), 0, -1):  # the most specific first
+        name = names.get(_ENV_PREFIX + "__".join(parts[:n]))
+        if name is not None:
+            return name
+    inside = sorted(n for n in names if n.startswith(_ENV_PREFIX + "__".join(parts) + "__"))
+    return names[inside[0]] if inside else None  # a field of the section (cross-field check)
+
+
+def _build(data: dict[str, Any], where: str) -> SemslamConfig:
+    """``SemslamConfig(**data)`` (plus SEMSLAM_ variables), every failure one ConfigError
+    naming the file (``where``) or the environment variable and the field."""
     try:
         return SemslamConfig(**data)
+    except SettingsError as e:  # a SEMSLAM_ variable whose value is not valid JSON
+        found = re.search(r'field "([^"]+)"', str(e))
+        field = found.group(1) if found else ""
+        variable = _environment_variable((field,)) or f"{_ENV_PREFIX}{field.upper()}"
+        raise ConfigError(
+            f"{variable}: not valid JSON (a section is set as a JSON object)"
+        ) from None
     except ValidationError as e:
         err = e.errors()[0]
         field = ".".join(str(p) for p in err["loc"])
-        where = str(path) if path is not None else "configuration"
-        raise ConfigError(f"{where}: {field}: {err['msg']}") from None
+        message = str(err["msg"]).removeprefix("Value error, ")
+        variable = _environment_variable(tuple(err["loc"]))
+        if variable is not None:
+            where = variable
+        raise ConfigError(f"{where}: {field}: {message}") from None
 
 
 def config_to_json(config: SemslamConfig) -> str:
@@ -344,9 +390,4 @@ def with_overrides(config: SemslamConfig, **sections: dict[str, Any]) -> Semslam
     data = config.model_dump()
     for section, fields in sections.items():
         data[section].update({k: v for k, v in fields.items() if v is not None})
-    try:
-        return SemslamConfig(**data)
-    except ValidationError as e:
-        err = e.errors()[0]
-        field = ".".join(str(p) for p in err["loc"])
-        raise ConfigError(f"{field}: {err['msg']}") from None
+    return _build(data, "configuration")

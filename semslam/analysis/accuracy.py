@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from semslam.errors import ConfigError
 from semslam.geometry import FloatArray, clip_segment, rotation
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
@@ -650,8 +651,14 @@ def predicted_on_grid(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Single-frame position sigma (m) on a grid over ``bounds`` (xmin, ymin, xmax, ymax;
     default: the map's landmarks plus 2 m): the worst over ``headings_deg`` at each cell.
-    Returns the grid's x (W,), y (H,) and sigma (H, W)."""
+    Returns the grid's x (W,), y (H,) and sigma (H, W).
+
+    Raises:
+        ConfigError: a step that is not a positive finite number, bounds that are not
+            finite, or a grid of more than :data:`MAX_GRID_CELLS` cells (refused before
+            anything is allocated: a tiny step or a far-away landmark or route)."""
     x0, y0, x1, y1 = bounds or geometry.bounds()
+    _grid_size(x0, y0, x1, y1, step)
     xs = np.arange(x0, x1 + 1e-9, step)
     ys = np.arange(y0, y1 + 1e-9, step)
     sigma = np.zeros((len(ys), len(xs)))
@@ -664,6 +671,29 @@ def predicted_on_grid(
                 worst = max(worst, position_sigma(single_frame_covariance(info)))
             sigma[i, j] = worst
     return xs, ys, sigma
+
+
+MAX_GRID_CELLS = 4_000_000
+"""Most cells :func:`predicted_on_grid` computes (at a few ms a cell, already hours)."""
+
+
+def _grid_size(x0: float, y0: float, x1: float, y1: float, step: float) -> int:
+    """Cells of the grid over the bounds, checked against :data:`MAX_GRID_CELLS`."""
+    if not (math.isfinite(step) and step > 0):
+        raise ConfigError(
+            f"accuracy: the grid step must be a positive number of metres, got {step}"
+        )
+    if not all(math.isfinite(v) for v in (x0, y0, x1, y1)) or x1 < x0 or y1 < y0:
+        raise ConfigError(f"accuracy: the grid bounds {(x0, y0, x1, y1)} are not a finite box")
+    nx = math.floor((x1 - x0 + 1e-9) / step) + 1
+    ny = math.floor((y1 - y0 + 1e-9) / step) + 1
+    if nx * ny > MAX_GRID_CELLS:
+        raise ConfigError(
+            f"accuracy: a grid of {nx * ny:.3g} cells ({nx} x {ny}, {x1 - x0:.4g} m x "
+            f"{y1 - y0:.4g} m at {step:g} m) is more than {MAX_GRID_CELLS:,}; raise "
+            "--grid-step or check the map extent (and the route's)"
+        )
+    return nx * ny
 
 
 def worst_stretches(

@@ -167,7 +167,8 @@ class Drive:
         """The observation set ``observations/<name>.jsonl``.
 
         Raises:
-            DriveError: no such set (the message lists the available ones).
+            DriveError: no such set (the message lists the available ones), or the
+                file holds no observations (nothing to map or localize).
             FormatError: the file is broken.
         """
         path = observations_file(self.folder, name)
@@ -177,7 +178,10 @@ class Drive:
             raise DriveError(
                 f"{os.fspath(path)}: no observation set '{name}'{listed}; available: {available}"
             )
-        return read_observations(path)
+        frames = read_observations(path)
+        if not frames:
+            raise DriveError(f"{os.fspath(path)}: no observations (the file has no frames)")
+        return frames
 
     def image_path(self, column: str, i: int) -> Path:
         """Path of the image of frame ``i`` (0-based) in column ``column`` of frames.csv.

@@ -188,6 +188,35 @@ def _positive_definite(m: FloatArray) -> bool:
     return True
 
 
+MAX_INFORMATION = 1e15
+"""Largest information entry (or eigenvalue) accepted: a standard deviation of 3e-8."""
+
+MIN_INFORMATION = 1e-12
+"""Smallest information eigenvalue accepted (a standard deviation of 1e6 m or rad)."""
+
+MAX_CONDITION = 1e12
+"""Largest condition number of an information matrix a solver can use reliably."""
+
+
+def information_problem(m: FloatArray) -> str | None:
+    """Why an information matrix cannot be solved with, or None when it can: not positive
+    definite, an entry above :data:`MAX_INFORMATION`, an eigenvalue below
+    :data:`MIN_INFORMATION`, or a condition number above :data:`MAX_CONDITION`
+    (gtsam stops on such matrices with an indeterminate system)."""
+    if not _positive_definite(m):
+        return "is not positive definite"
+    largest_entry = float(np.max(np.abs(m)))
+    if largest_entry > MAX_INFORMATION:
+        return f"has an entry of {largest_entry:g} (at most {MAX_INFORMATION:g})"
+    eigenvalues = np.linalg.eigvalsh(m)
+    if eigenvalues[0] < MIN_INFORMATION:
+        return f"has an eigenvalue of {eigenvalues[0]:g} (at least {MIN_INFORMATION:g})"
+    condition = float(eigenvalues[-1] / eigenvalues[0])
+    if condition > MAX_CONDITION:
+        return f"is ill-conditioned (condition number {condition:.3g} > {MAX_CONDITION:g})"
+    return None
+
+
 class _Tokens:
     """The tokens of one line, consumed left to right with checked conversions."""
 
@@ -224,8 +253,9 @@ class _Tokens:
 
     def information(self, names: tuple[str, ...], what: str) -> FloatArray:
         info = information_from_upper(self.numbers(names))
-        if not _positive_definite(info):
-            raise self.fail(f"{what} information matrix is not positive definite")
+        problem = information_problem(info)
+        if problem is not None:
+            raise self.fail(f"{what} information matrix {problem}")
         return info
 
 
@@ -346,10 +376,16 @@ def read_g2o(path: str | os.PathLike[str]) -> PoseGraph2D:
         FormatError: missing or unreadable file, unknown tag, wrong field count, a
             non-number, NaN or infinity, a negative or non-integer id, a vertex defined
             twice, an edge joining a vertex to itself or naming an undefined vertex, a
-            non-positive weight or an information matrix that is not positive definite;
-            the one-line message is ``"<file> line N: ..."``.
+            non-positive weight, an information matrix that is not positive definite or
+            is ill-conditioned (see :func:`information_problem`); the one-line message is
+            ``"<file> line N: ..."``. A file without any ``VERTEX_SE2`` line (empty, only
+            comments or only points) is refused: ``"<file>: no VERTEX_SE2 lines"``.
     """
-    return parse_g2o(read_text(path, FormatError), os.fspath(path))
+    name = os.fspath(path)
+    graph = parse_g2o(read_text(path, FormatError), name)
+    if not graph.vertices:
+        raise FormatError(f"{name}: no VERTEX_SE2 lines (a pose graph needs at least one pose)")
+    return graph
 
 
 # --------------------------------------------------------------------------- writing

@@ -12,8 +12,11 @@ Layout (map frame, metres and radians)::
      "markings": [{"a" [2], "b" [2], "width"}]}
 
 Every load checks, in order: JSON syntax, finite numbers, the format
-string, the version, the schema, unique slot IDs. Each failure is a
-:class:`~semslam.errors.MapError` naming the file and the field.
+string, the version, the schema, unique slot IDs, then the values: every
+coordinate within :data:`MAX_COORDINATE` of the origin, covariances symmetric
+positive semi-definite, markings of non-zero length, each tag (family, id)
+once. Each failure is a :class:`~semslam.errors.MapError` naming the file and
+the field (``map.json: slots/0/corner_covariances/0: not positive semi-definite``).
 """
 
 from __future__ import annotations
@@ -41,6 +44,9 @@ from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag
 MAP_FORMAT = "semslam-map"
 MAP_VERSION = 1
 
+MAX_COORDINATE = 1e6
+"""Largest ``|x|`` or ``|y|`` of a map coordinate, metres (1000 km: beyond it, a broken file)."""
+
 
 def map_to_dict(semantic_map: SemanticMap) -> dict[str, Any]:
     """The JSON document of a map (plain Python values; numpy converted).
@@ -67,7 +73,9 @@ def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
 
     Raises:
         MapError: wrong format or version, a schema violation, NaN/infinity,
-            or duplicate slot IDs; the message names ``source`` and the field.
+            duplicate slot IDs or tags, a coordinate beyond :data:`MAX_COORDINATE`, a
+            covariance that is not symmetric positive semi-definite, or a zero-length
+            marking; the message names ``source`` and the field.
     """
     check_map_document(document, source)
     root = Field(document, source, MapError)
@@ -79,12 +87,40 @@ def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
                 f"{source}: slots/{i}/id: duplicate id {slot.id} (also slots/{seen[slot.id]})"
             )
         seen[slot.id] = i
+    tags = tuple(_tag_from_field(f) for f in root["tags"].items())
+    first_tag: dict[tuple[str, int], int] = {}
+    for i, tag in enumerate(tags):
+        key = (str(tag.family), int(tag.tag_id))
+        if key in first_tag:
+            raise MapError(
+                f"{source}: tags/{i}: duplicate tag {key[0]} id {key[1]} "
+                f"(also tags/{first_tag[key]})"
+            )
+        first_tag[key] = i
     return SemanticMap(
         slots=slots,
-        tags=tuple(_tag_from_field(f) for f in root["tags"].items()),
+        tags=tags,
         markings=tuple(_marking_from_field(f) for f in root["markings"].items()),
         metadata=dict(document["metadata"]),
     )
+
+
+def _check_coordinates(f: Field, points: np.ndarray) -> None:
+    """Refuse a coordinate farther than :data:`MAX_COORDINATE` from the origin."""
+    big = np.flatnonzero(np.abs(np.asarray(points, dtype=float)).reshape(-1) > MAX_COORDINATE)
+    if big.size:
+        value = float(np.asarray(points, dtype=float).reshape(-1)[big[0]])
+        f.fail(f"coordinate {value:g} m is out of range (|x|, |y| <= {MAX_COORDINATE:g} m)")
+
+
+def _check_covariance(f: Field, covariance: np.ndarray) -> None:
+    """Refuse a covariance that is not symmetric positive semi-definite (to rounding)."""
+    c = np.asarray(covariance, dtype=float)
+    scale = max(float(np.max(np.abs(c))), 1e-300)
+    if np.max(np.abs(c - c.T)) > 1e-9 * scale:
+        f.fail("not symmetric")
+    if float(np.linalg.eigvalsh(0.5 * (c + c.T))[0]) < -1e-9 * scale:
+        f.fail("not positive semi-definite")
 
 
 def check_map_document(document: Any, source: str = "<dict>") -> None:
@@ -146,12 +182,17 @@ def _slot_to_dict(slot: Slot) -> dict[str, Any]:
 
 
 def _slot_from_field(f: Field) -> Slot:
+    corners = f["corners"].array((4, 2))
+    _check_coordinates(f["corners"], corners)
+    covariances = f["corner_covariances"].array((4, 2, 2))
+    for j, field in enumerate(f["corner_covariances"].items()):
+        _check_covariance(field, covariances[j])
     return Slot(
         id=f["id"].integer(),
         label=f["label"].optional_string(),
         label_confidence=f["label_confidence"].number(0.0, 1.0),
-        corners=f["corners"].array((4, 2)),
-        corner_covariances=f["corner_covariances"].array((4, 2, 2)),
+        corners=corners,
+        corner_covariances=covariances,
         kind=f["kind"].choice(SlotKind),
         observations=f["observations"].integer(0),
         heading_variance=None if (h := f.get("heading_variance")) is None else h.number(0.0),
@@ -164,6 +205,8 @@ def _tag_to_dict(tag: Tag) -> dict[str, Any]:
 
 def _tag_from_field(f: Field) -> Tag:
     parts = tag_fields(f)
+    _check_coordinates(f, parts["pose"][:2])
+    _check_covariance(f["covariance"], parts["covariance"])
     return Tag(mTt=parts.pop("pose"), **parts)
 
 
@@ -176,6 +219,9 @@ def _marking_to_dict(marking: Marking) -> dict[str, Any]:
 
 
 def _marking_from_field(f: Field) -> Marking:
-    return Marking(
-        a=f["a"].array((2,)), b=f["b"].array((2,)), width=f["width"].number(positive=True)
-    )
+    a, b = f["a"].array((2,)), f["b"].array((2,))
+    _check_coordinates(f["a"], a)
+    _check_coordinates(f["b"], b)
+    if np.array_equal(a, b):
+        f.fail("zero-length marking (a and b are the same point)")
+    return Marking(a=a, b=b, width=f["width"].number(positive=True))

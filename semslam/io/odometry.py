@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from semslam.errors import DriveError
 from semslam.geometry import FloatArray
 from semslam.io._csv import check_columns, check_header, read_table
 from semslam.io._rows import check_finite_columns, check_time_order, check_times, parse_number
@@ -14,6 +16,14 @@ from semslam.io.atomic import atomic_write_text
 from semslam.io.errors import DriveFormatError
 
 ODOMETRY_HEADER = ["t", "speed", "yaw_rate"]
+
+MAX_SPEED = 100.0
+"""Largest believable ``|speed|``, m/s (360 km/h: no car in a garage, nor anywhere)."""
+
+MAX_YAW_RATE = 20.0
+"""Largest believable ``|yaw_rate|``, rad/s (over 3 turns a second: a broken gyro)."""
+
+_LIMITS = {"speed": (MAX_SPEED, "m/s"), "yaw_rate": (MAX_YAW_RATE, "rad/s")}
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,8 +48,9 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
     """Write odometry.csv atomically, every number at full precision.
 
     Raises:
-        DriveFormatError: arrays of different lengths, NaN/infinity, or time not
-            strictly increasing; nothing is written.
+        DriveFormatError: arrays of different lengths, NaN/infinity, an impossible
+            speed or yaw rate (see :func:`read_odometry`), or time not strictly
+            increasing; nothing is written.
     """
     columns = {
         "t": np.asarray(odometry.t, dtype=float),
@@ -54,6 +65,11 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
     check_times(columns["t"], path, DriveFormatError, "sample")
+    for column, (limit, _unit) in _LIMITS.items():
+        over = np.flatnonzero(np.abs(columns[column]) > limit)
+        if over.size:
+            i = int(over[0])
+            _refuse(f"{os.fspath(path)}: sample {i}", column, float(columns[column][i]))
     lines = [",".join(ODOMETRY_HEADER)]
     lines += [
         f"{float(t)!r},{float(v)!r},{float(w)!r}"
@@ -65,10 +81,13 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
 def read_odometry(path: str | os.PathLike[str]) -> Odometry:
     """Read odometry.csv.
 
+    Physically impossible values are refused: ``|speed|`` above :data:`MAX_SPEED`
+    (100 m/s) or ``|yaw_rate|`` above :data:`MAX_YAW_RATE` (20 rad/s).
+
     Raises:
         DriveFormatError: missing or empty file, wrong header, wrong column
-            count, a non-number, NaN/infinity, time not strictly increasing;
-            e.g. ``odometry.csv line 17: speed is NaN``.
+            count, a non-number, NaN/infinity, an impossible speed or yaw rate,
+            time not strictly increasing; e.g. ``odometry.csv line 17: speed is NaN``.
     """
     name = os.fspath(path)
     header, rows = read_table(path, DriveFormatError)
@@ -80,6 +99,48 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
         check_columns(fields, ODOMETRY_HEADER, where, DriveFormatError)
         for j, column in enumerate(ODOMETRY_HEADER):
             data[i, j] = parse_number(fields[j], where, column, DriveFormatError)
+            if column in _LIMITS and abs(data[i, j]) > _LIMITS[column][0]:
+                _refuse(where, column, float(data[i, j]))
         check_time_order(previous, data[i, 0], where, DriveFormatError)
         previous = data[i, 0]
     return Odometry(t=data[:, 0].copy(), speed=data[:, 1].copy(), yaw_rate=data[:, 2].copy())
+
+
+def _refuse(where: str, column: str, value: float) -> None:
+    limit, unit = _LIMITS[column]
+    raise DriveFormatError(
+        f"{where}: {column} {value:g} {unit} is impossible (|{column}| must be <= {limit:g} {unit})"
+    )
+
+
+def odometry_span(odometry_t: FloatArray) -> tuple[float, float, float]:
+    """``(first, last, period)`` of odometry sample times, the period being the median
+    interval (0 for a single sample); for :func:`check_covered`. Without samples the
+    span is unbounded (nothing to check against).
+    """
+    times = np.asarray(odometry_t, dtype=float).reshape(-1)
+    if times.size == 0:
+        return -math.inf, math.inf, 0.0
+    period = float(np.median(np.diff(times))) if times.size > 1 else 0.0
+    return float(times[0]), float(times[-1]), period
+
+
+def check_covered(
+    t: float, span: tuple[float, float, float], what: str = "observations", start: bool = False
+) -> None:
+    """Refuse a time the odometry (its :func:`odometry_span`) does not cover.
+
+    A time more than one odometry period after the last sample is refused (odometry.csv
+    cut short); with ``start``, so is a time before the first sample.
+
+    Raises:
+        DriveError: ``"observations reach 91.900 s, after the odometry (ends at 9.980 s)..."``.
+    """
+    first, last, period = span
+    if t > last + period + 1e-6:
+        raise DriveError(
+            f"{what} reach {t:.3f} s, after the odometry (ends at {last:.3f} s): "
+            "is odometry.csv cut short?"
+        )
+    if start and t < first - 1e-6:
+        raise DriveError(f"{what} start at {t:.3f} s, before the odometry ({first:.3f} s)")

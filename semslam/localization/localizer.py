@@ -37,6 +37,7 @@ from scipy.stats import chi2
 from semslam.config import LocalizationConfig
 from semslam.errors import DriveError
 from semslam.geometry import FloatArray, wrap_angle
+from semslam.io.odometry import check_covered, odometry_span
 from semslam.localization.association import LocalMap
 from semslam.localization.filter import (
     CALIBRATED_STATES,
@@ -102,6 +103,7 @@ class Localizer:
         self.odo_t = np.asarray(odometry_t, dtype=float)
         self.odo_v = np.asarray(odometry_speed, dtype=float)
         self.odo_w = np.asarray(odometry_yaw_rate, dtype=float)
+        self._span = odometry_span(self.odo_t)  # frames after its end are refused
         noise = ProcessNoise(
             cfg.acceleration_sigma, cfg.yaw_acceleration_sigma, cfg.position_walk, cfg.yaw_walk,
             cfg.speed_scale_walk, cfg.gyro_bias_walk,
@@ -123,9 +125,15 @@ class Localizer:
 
     # ------------------------------------------------------------------ public
     def step(self, frame: FrameObservations) -> FrameEstimate:
-        """Process one frame; frames must come in time order."""
+        """Process one frame; frames must come in time order.
+
+        Raises:
+            DriveError: time went back, or the frame is more than one odometry period
+                after the last odometry sample (odometry.csv cut short).
+        """
         if self.t is not None and frame.t < self.t:
             raise DriveError(f"frame at {frame.t:.3f} s comes after {self.t:.3f} s: time went back")
+        check_covered(frame.t, self._span)
         if not (self.cfg.use_slots and self.cfg.use_tags):  # switched-off sensors: unseen
             frame = replace(
                 frame,

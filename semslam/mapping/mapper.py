@@ -37,7 +37,9 @@ import gtsam
 import numpy as np
 
 from semslam.config import MappingConfig
+from semslam.errors import MappingError
 from semslam.geometry import FloatArray, compose, rotation_variance, transform_points, wrap_angle
+from semslam.io.odometry import check_covered, odometry_span
 from semslam.mapping.factors import (
     calibrated_odometry_residual,
     custom_factor,
@@ -143,6 +145,7 @@ class Mapper:
             np.asarray(odometry_speed),
             np.asarray(odometry_yaw_rate),
         )
+        self._span = odometry_span(self.odo[0])  # frames must lie within it
         self.use_graph = config.optimizer == "isam2"
         self.robust = config.robust == "maxmix"
         self.null = NullHypothesis(config.null_weight, config.null_information_scale)
@@ -177,7 +180,13 @@ class Mapper:
 
     # ------------------------------------------------------------------ frames
     def add_frame(self, frame: FrameObservations) -> bool:
-        """Add a frame; returns True if it became a keyframe."""
+        """Add a frame; returns True if it became a keyframe.
+
+        Raises:
+            DriveError: the frame lies outside the odometry (before its first sample, or
+                more than one sample period after its last one).
+        """
+        check_covered(frame.t, self._span, start=True)
         if not self.keyframe_times:
             self._add_keyframe(frame.t, self._start, None)
             self._observe(frame)
@@ -593,6 +602,13 @@ class Mapper:
 
     # ------------------------------------------------------------------ finish
     def finish(self) -> MappingResult:
+        """Solve and export the map.
+
+        Raises:
+            MappingError: no frame was added (nothing to map).
+        """
+        if not self.keyframe_times:
+            raise MappingError("mapping: no observation frames to map (the drive has none)")
         started = time.perf_counter()
         iterations = 0
         marginals = None

@@ -68,6 +68,7 @@ gtsam stays inside this module; results are numpy.
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -76,6 +77,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
+from semslam.errors import MappingError
 from semslam.geometry import FloatArray
 from semslam.io.g2o import Edge2D, MixtureEdge2D, PointEdge2D, PoseGraph2D
 from semslam.mapping.maxmix import (
@@ -345,7 +347,7 @@ class _Problem:
 def _problem(graph: PoseGraph2D) -> _Problem:
     order = sorted(graph.vertices)
     if not order:
-        raise ValueError("the pose graph has no pose vertices")
+        raise MappingError("the pose graph has no pose vertices")
     fixed = [v for v in graph.fixed if v in graph.vertices] or [order[0]]
     return _Problem(
         graph=graph,
@@ -512,7 +514,9 @@ def optimize_pose_graph(
         The optimised poses and points, the chosen component of every mixture and statistics.
 
     Raises:
-        ValueError: an unknown mode or schedule, or a graph without poses.
+        ValueError: an unknown mode or schedule.
+        MappingError: a graph without poses, or gtsam found the system indeterminate
+            (under-constrained or too poorly conditioned); one line naming the variable.
     """
     if robust not in ROBUST_MODES:
         raise ValueError(f"robust must be one of {ROBUST_MODES}, got {robust!r}")
@@ -523,7 +527,10 @@ def optimize_pose_graph(
     start = time.perf_counter()
     problem = _problem(graph)
     if robust == "none":
-        return _least_squares(problem, max_iterations, start)
+        try:
+            return _least_squares(problem, max_iterations, start)
+        except RuntimeError as exc:
+            raise _indeterminate(exc) from None
     if schedule == "auto":
         single_pair = all(m.single_pair for m in problem.mixtures)
         schedule = "incremental" if single_pair and _is_chain(problem) else "batch"
@@ -535,8 +542,25 @@ def optimize_pose_graph(
     solver = _Solver(
         problem, gate_probability, cluster_gap, max_rounds, max_iterations, relinearize_threshold
     )
-    values = solver.batch() if schedule == "batch" else solver.incremental()
-    return solver.result(values, schedule, start)
+    try:
+        values = solver.batch() if schedule == "batch" else solver.incremental()
+        return solver.result(values, schedule, start)
+    except RuntimeError as exc:
+        raise _indeterminate(exc) from None
+
+
+def _indeterminate(exc: RuntimeError) -> MappingError | RuntimeError:
+    """gtsam's (ten-line) IndeterminateSystemException as one line naming the variable;
+    any other RuntimeError is returned unchanged (a bug, keeps its traceback)."""
+    text = " ".join(str(exc).split())
+    if "Indeterminate" not in text and "ndeterminant" not in text:
+        return exc
+    found = re.search(r"near variable (\S+)", text)
+    variable = f"variable {found.group(1)}" if found else "an unknown variable"
+    return MappingError(
+        f"the pose graph could not be solved: the system is indeterminate near {variable} "
+        "(under-constrained, or information matrices too poorly conditioned)"
+    )
 
 
 def _is_chain(problem: _Problem) -> bool:

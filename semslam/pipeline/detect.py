@@ -30,7 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from semslam.errors import FormatError
+from semslam.errors import FormatError, PerceptionError, SemslamError
 from semslam.evaluation.detection_metrics import DetectionCounts, score_image
 from semslam.io.atomic import atomic_write_bytes
 from semslam.io.images import read_image
@@ -116,11 +116,11 @@ def draw_overlay(
     return out
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
+def _encode_png(path: Path, image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".png", image)
     if not ok:  # pragma: no cover - OpenCV cannot fail on a BGR uint8 array
         raise FormatError(f"{path}: could not encode the overlay")
-    atomic_write_bytes(path, buf.tobytes())
+    return buf.tobytes()
 
 
 def detect_files(
@@ -137,9 +137,16 @@ def detect_files(
     """
     perception = perception or TopviewPerception(lines=lines)
     out = []
+    overlays = []  # written only once every image is read and detected: a bad one writes none
     for path in images:
         image = read_image(path)
-        det = perception.detect(image)
+        try:
+            det = perception.detect(image)
+        except SemslamError as e:  # name the image: the detectors do not know it
+            message = str(e)
+            raise PerceptionError(
+                message if message.startswith(os.fspath(path)) else f"{path}: {message}"
+            ) from None
         out.append(
             {
                 "image": os.fspath(path),
@@ -149,9 +156,10 @@ def detect_files(
             }
         )
         if overlay_dir is not None:
-            _write_png(
-                Path(overlay_dir) / f"{Path(path).stem}.png", draw_overlay(image, perception, det)
-            )
+            target = Path(overlay_dir) / f"{Path(path).stem}.png"
+            overlays.append((target, _encode_png(target, draw_overlay(image, perception, det))))
+    for target, data in overlays:
+        atomic_write_bytes(target, data)
     return {"images": out}
 
 

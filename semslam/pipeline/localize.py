@@ -36,6 +36,10 @@ class LocalizeSummary:
     odometry_errors: tuple | None = None  # ((scale, bias), (sigmas)) at the end, or None
 
 
+MAX_INIT_M = 1e6  # metres: no garage is larger; far beyond it, floats overflow
+MAX_INIT_YAW = 1e3  # radians, before wrapping
+
+
 def parse_init(text: str | None) -> np.ndarray | None:
     """``"x,y,yaw"`` (m, m, rad) -> pose; ``"auto"`` or None -> None (find it in the map)."""
     if text is None or text == "auto":
@@ -46,6 +50,12 @@ def parse_init(text: str | None) -> np.ndarray | None:
         raise DriveError(f"--init {text}: expected x,y,yaw (m, m, rad) or auto") from None
     if len(values) != 3 or not np.all(np.isfinite(values)):
         raise DriveError(f"--init {text}: expected three finite numbers x,y,yaw or auto")
+    if max(abs(values[0]), abs(values[1])) > MAX_INIT_M:
+        raise DriveError(
+            f"--init: x and y must be within 1e6 m, got {values[0]:g}, {values[1]:g}"
+        )
+    if abs(values[2]) > MAX_INIT_YAW:
+        raise DriveError(f"--init: yaw must be within {MAX_INIT_YAW:g} rad, got {values[2]:g}")
     return np.array(values)
 
 
@@ -65,11 +75,12 @@ def localize_drive(
     from semslam.io.track_csv import Track, write_track_csv
     from semslam.localization.localizer import Localizer
 
+    given_init = None if init is None else parse_init(init)  # bad --init: fail before any work
     semantic_map = load_map(map_path)
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
     frames = load_observations(drive, observations, config, show_progress)
-    initial = drive.start_pose if init is None else parse_init(init)
+    initial = drive.start_pose if init is None else given_init
     started = time.perf_counter()
     localizer = Localizer(
         semantic_map, config.localization, odometry.t, odometry.speed, odometry.yaw_rate, initial
@@ -82,21 +93,25 @@ def localize_drive(
     elapsed = time.perf_counter() - started
     posed = [e for e in estimates if np.all(np.isfinite(e.pose))]
     track_path = output.with_suffix(".csv")
-    if posed:
-        t = np.array([e.t for e in posed])
-        poses = np.array([e.pose for e in posed])
-        write_tum(output, t, poses)
-        write_track_csv(
-            track_path,
-            Track(
-                t,
-                poses,
-                np.array([e.covariance for e in posed]),
-                tuple(e.status for e in posed),
-                np.array([e.associated for e in posed]),
-                np.array([e.rejected for e in posed]),
-            ),
+    if not posed:
+        raise DriveError(
+            f"{drive_folder}: no pose was found in any frame ({len(frames)} frames) against "
+            f"{map_path}; {output} not written"
         )
+    t = np.array([e.t for e in posed])
+    poses = np.array([e.pose for e in posed])
+    write_tum(output, t, poses)
+    write_track_csv(
+        track_path,
+        Track(
+            t,
+            poses,
+            np.array([e.covariance for e in posed]),
+            tuple(e.status for e in posed),
+            np.array([e.associated for e in posed]),
+            np.array([e.rejected for e in posed]),
+        ),
+    )
     counts: dict[str, int] = {}
     for e in estimates:
         counts[e.status] = counts.get(e.status, 0) + 1

@@ -38,8 +38,16 @@ class MapSummary:
     statistics: dict
 
 
+SIBLING_SUFFIXES = (".trajectory.tum", ".g2o", ".audit.jsonl", ".audit.json", ".config.json")
+
+
 def _sibling(map_path: Path, suffix: str) -> Path:
     return map_path.with_name(map_path.stem + suffix)
+
+
+def sibling_paths(map_path: Path) -> list[Path]:
+    """The files ``semslam map`` writes beside the map at ``map_path``."""
+    return [_sibling(Path(map_path), suffix) for suffix in SIBLING_SUFFIXES]
 
 
 def load_observations(

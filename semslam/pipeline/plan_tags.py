@@ -16,7 +16,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from semslam.errors import ConfigError
+from semslam.errors import ConfigError, FormatError
+
+MAX_COUNT = 1000  # tags proposed: each costs a pass over every candidate
+MAX_RANDOM_TRIALS = 10000
 
 
 def plan_tags(
@@ -58,19 +61,25 @@ def plan_tags(
     from semslam.plots import tag_plan_figure
     from semslam.types import SemanticMap
 
-    if count < 1:
-        raise ConfigError(f"--count: must be at least 1, got {count}")
-    if random_trials < 1:
-        raise ConfigError(f"--random-trials: must be at least 1, got {random_trials}")
+    if not 1 <= count <= MAX_COUNT:
+        raise ConfigError(f"--count: must be between 1 and {MAX_COUNT}, got {count}")
+    if not 1 <= random_trials <= MAX_RANDOM_TRIALS:
+        raise ConfigError(
+            f"--random-trials: must be between 1 and {MAX_RANDOM_TRIALS}, got {random_trials}"
+        )
     if grade not in GRADES:
         raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
     for name, value in (("--spacing", spacing), ("--offset", offset)):
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
+    t, poses = read_tum(route)
+    xy = np.asarray(poses, dtype=float).reshape(len(t), -1)[:, :2]
+    length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(t) >= 2 else 0.0
+    if not (math.isfinite(length) and length > 0):
+        raise FormatError(f"{os.fspath(route)}: the route needs at least two poses and some length")
     semantic_map = load_map(map_path)
     if not keep_existing:
         semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
-    t, poses = read_tum(route)
     poses, t = resample_route(poses, t, 1.0)
     infos, _ = route_information(MapGeometry(semantic_map), poses)
     candidates = candidate_tags(poses, spacing, offset)

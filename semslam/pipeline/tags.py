@@ -35,6 +35,8 @@ from semslam.perception.tag_pose import PositionVariant
 from semslam.perception.tags import TagEstimate, TagSettings, estimate_tags
 from semslam.rig import Camera, CameraModel
 
+MIN_DECIMATED_PX = 8  # smallest side of the decimated image the detector is given
+
 
 def parse_numbers(text: str, name: str, counts: Sequence[int]) -> list[float]:
     """Comma-separated finite numbers, as many as one of ``counts``, or a one-line error."""
@@ -56,8 +58,10 @@ def make_camera(
 ) -> Camera:
     """A camera at the origin from fx, fy, cx, cy and optional distortion coefficients."""
     fx, fy, cx, cy = (float(v) for v in intrinsics)
-    if fx <= 0 or fy <= 0:
-        raise PerceptionError(f"--intrinsics: focal lengths must be positive, got {fx}, {fy}")
+    if not (fx >= 1 and fy >= 1):
+        raise PerceptionError(
+            f"--intrinsics: focal lengths must be at least 1 px, got {fx:g}, {fy:g}"
+        )
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     D = np.asarray(distortion if distortion is not None else [], dtype=float)
     if fisheye and len(D) != 4:
@@ -134,6 +138,14 @@ def tags_in_images(
     out = []
     for path in images:
         gray = read_image(path, grey=True)
+        height, width = gray.shape[:2]
+        if decimate > 1 and min(width / decimate, height / decimate) < MIN_DECIMATED_PX:
+            # the AprilTag library crashes (not an error: the process dies) on such images
+            raise PerceptionError(
+                f"{path}: --decimate {decimate:g} leaves a {int(width / decimate)} x "
+                f"{int(height / decimate)} px image (needs at least {MIN_DECIMATED_PX} px "
+                "a side)"
+            )
         camera = make_camera(intrinsics, distortion, fisheye, (gray.shape[1], gray.shape[0]))
         try:
             estimates = estimate_tags(gray, camera, settings)

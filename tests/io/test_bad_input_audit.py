@@ -1,0 +1,271 @@
+"""Bad input found by the audit, refused by the library with one line naming what and where."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import make_map
+
+import semslam.io.g2o as g2o_module
+from semslam.analysis.accuracy import MapGeometry, predicted_on_grid
+from semslam.config import LocalizationConfig, MappingConfig, load_config, with_overrides
+from semslam.errors import ConfigError, DriveError, FormatError, MapError, MappingError
+from semslam.io import Drive, map_from_dict, map_to_dict
+from semslam.io.errors import DriveFormatError
+from semslam.io.g2o import parse_g2o, read_g2o
+from semslam.io.odometry import Odometry, read_odometry, write_odometry
+from semslam.localization.localizer import Localizer
+from semslam.mapping.mapper import Mapper
+from semslam.mapping.pose_graph import optimize_pose_graph
+from semslam.types import FrameObservations
+
+
+def _one_line(exc: pytest.ExceptionInfo, *words: str) -> None:
+    message = str(exc.value)
+    assert "\n" not in message, message
+    for word in words:
+        assert word in message, (word, message)
+
+
+# --------------------------------------------------------------------------- 1: no observations
+
+
+def test_an_empty_observation_set_is_refused(drive_folder: Path) -> None:
+    path = drive_folder / "observations" / "exact.jsonl"
+    path.write_text("")
+    with pytest.raises(DriveError) as exc:
+        Drive.open(drive_folder).observations("exact")
+    _one_line(exc, "exact.jsonl", "no observations")
+
+
+def test_the_mapper_refuses_to_finish_without_frames() -> None:
+    mapper = Mapper(MappingConfig(), np.zeros(3), np.array([0.0, 0.1]), np.ones(2), np.zeros(2))
+    with pytest.raises(MappingError) as exc:
+        mapper.finish()
+    _one_line(exc, "no observation frames")
+
+
+# --------------------------------------------------------------------------- 2: odometry values
+
+
+@pytest.mark.parametrize(
+    ("row", "column"), [("0.2,1e308,0.0", "speed"), ("0.2,1.0,-25", "yaw_rate")]
+)
+def test_impossible_odometry_is_refused_with_its_line(
+    tmp_path: Path, row: str, column: str
+) -> None:
+    path = tmp_path / "odometry.csv"
+    path.write_text(f"t,speed,yaw_rate\n0.0,1.0,0.0\n0.1,1.0,0.0\n{row}\n")
+    with pytest.raises(DriveFormatError) as exc:
+        read_odometry(path)
+    _one_line(exc, "odometry.csv line 4", column, "impossible")
+
+
+def test_plausible_odometry_still_reads_and_impossible_is_not_written(tmp_path: Path) -> None:
+    path = tmp_path / "odometry.csv"
+    plausible = Odometry(np.array([0.0, 0.1]), np.array([99.0, -3.0]), np.array([-19.0, 1.0]))
+    write_odometry(path, plausible)
+    assert read_odometry(path).speed[0] == 99.0
+    with pytest.raises(DriveFormatError) as exc:
+        write_odometry(path, Odometry(np.array([0.0]), np.array([101.0]), np.array([0.0])))
+    _one_line(exc, "sample 0", "speed")
+
+
+# --------------------------------------------------------------------------- 3: map values
+
+
+def _map_document() -> dict:
+    return json.loads(json.dumps(map_to_dict(make_map())))
+
+
+@pytest.mark.parametrize(
+    ("mutate", "words"),
+    [
+        (
+            lambda d: d["slots"][0].__setitem__("corner_covariances", [[[-1, 0], [0, -1]]] * 4),
+            ("slots/0/corner_covariances/0", "not positive semi-definite"),
+        ),
+        (
+            lambda d: d["slots"][1].__setitem__("corner_covariances", [[[1, 5], [0, 1]]] * 4),
+            ("slots/1/corner_covariances/0", "not symmetric"),
+        ),
+        (
+            lambda d: d["tags"][0].__setitem__("covariance", (-np.eye(3)).tolist()),
+            ("tags/0/covariance", "not positive semi-definite"),
+        ),
+        (
+            lambda d: d["slots"][0]["corners"][2].__setitem__(0, 1e300),
+            ("slots/0/corners", "out of range"),
+        ),
+        (lambda d: d["tags"][0].__setitem__("y", -2e6), ("tags/0", "out of range")),
+        (lambda d: d["markings"][0].__setitem__("b", [1e7, 0.0]), ("markings/0/b", "out of range")),
+        (
+            lambda d: d["markings"][0].__setitem__("b", d["markings"][0]["a"]),
+            ("markings/0", "zero-length"),
+        ),
+        (
+            lambda d: d["tags"].append(dict(d["tags"][0], x=9.0)),
+            ("tags/1", "duplicate tag", "id 5", "also tags/0"),
+        ),
+    ],
+)
+def test_map_values_are_checked(mutate, words) -> None:
+    document = _map_document()
+    mutate(document)
+    with pytest.raises(MapError) as exc:
+        map_from_dict(document, "m.json")
+    _one_line(exc, "m.json: ", *words)
+
+
+def test_a_valid_map_with_zero_covariances_still_loads() -> None:
+    document = _map_document()
+    document["slots"][0]["corner_covariances"] = [[[0, 0], [0, 0]]] * 4
+    assert len(map_from_dict(document, "m.json").slots) == 2
+
+
+# --------------------------------------------------------------------------- 4: g2o
+
+
+@pytest.mark.parametrize("text", ["", "# only a comment\n\n", "VERTEX_XY 1 0 0\n"])
+def test_a_g2o_file_without_poses_is_refused(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "g.g2o"
+    path.write_text(text)
+    with pytest.raises(FormatError) as exc:
+        read_g2o(path)
+    _one_line(exc, "g.g2o", "no VERTEX_SE2 lines")
+
+
+_CHAIN = (
+    "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
+    "EDGE_SE2 0 1 1 0 0 {v} 0 0 {v} 0 {v}\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 1000\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [("1e-300", ("eigenvalue", "1e-300")), ("1e300", ("entry", "1e+300"))],
+)
+def test_ill_conditioned_information_is_refused_with_its_line(
+    tmp_path: Path, value: str, words: tuple[str, ...]
+) -> None:
+    path = tmp_path / "g.g2o"
+    path.write_text(_CHAIN.format(v=value))
+    with pytest.raises(FormatError) as exc:
+        read_g2o(path)
+    _one_line(exc, "g.g2o line 4", "information matrix", *words)
+
+
+def test_a_poorly_conditioned_information_matrix_is_refused() -> None:
+    text = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1e13 0 0 1e13 0 0.1\n"
+    with pytest.raises(FormatError) as exc:
+        parse_g2o(text, "g.g2o")
+    _one_line(exc, "g.g2o line 3", "ill-conditioned")
+
+
+def test_an_indeterminate_system_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(g2o_module, "MIN_INFORMATION", 0.0)  # let the reader through
+    graph = parse_g2o(_CHAIN.format(v="1e-15"), "g.g2o")
+    with pytest.raises(MappingError) as exc:
+        optimize_pose_graph(graph, "maxmix")
+    _one_line(exc, "indeterminate", "variable 1")
+
+
+# --------------------------------------------------------------------------- 5: accuracy grid
+
+
+def test_a_huge_accuracy_grid_is_refused_before_allocating() -> None:
+    geometry = MapGeometry(make_map())
+    with pytest.raises(ConfigError) as exc:
+        predicted_on_grid(geometry, step=1e-4)
+    _one_line(exc, "accuracy: a grid of", "cells", "--grid-step")
+    with pytest.raises(ConfigError) as exc:
+        predicted_on_grid(geometry, step=1.0, bounds=(0.0, 0.0, 1e6, 20.0))
+    _one_line(exc, "1000001 x 21")
+
+
+# --------------------------------------------------------------------------- 6, 7: config
+
+
+def test_min_speed_above_max_speed_names_both(tmp_path: Path) -> None:
+    path = tmp_path / "c.json"
+    path.write_text('{"simulation": {"drive": {"min_speed": 5, "max_speed": 1}}}')
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", "simulation.drive", "min_speed (5)", "max_speed (1)")
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("odometry_rate", 1e9), ("frame_rate", 1000.0), ("odometry_rate", 0)]
+)
+def test_rates_are_bounded(tmp_path: Path, field: str, value: float) -> None:
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({"simulation": {"drive": {field: value}}}))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", f"simulation.drive.{field}")
+
+
+def test_default_rates_are_valid() -> None:
+    drive = load_config(None).simulation.drive
+    assert drive.min_speed <= drive.max_speed and drive.odometry_rate <= 1000
+
+
+def test_an_environment_variable_that_is_not_json_is_named(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("SEMSLAM_MAPPING", "{")
+    with pytest.raises(ConfigError) as exc:
+        load_config(None)
+    _one_line(exc, "SEMSLAM_MAPPING: not valid JSON")
+
+
+def test_an_invalid_environment_value_is_named_not_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "c.json"
+    path.write_text("{}")
+    monkeypatch.setenv("SEMSLAM_MAPPING__ROBUST", "sometimes")
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "SEMSLAM_MAPPING__ROBUST: mapping.robust")
+    assert "c.json" not in str(exc.value)
+    monkeypatch.delenv("SEMSLAM_MAPPING__ROBUST")
+    with pytest.raises(ConfigError) as exc:
+        with_overrides(load_config(path), mapping={"robust": "sometimes"})
+    _one_line(exc, "mapping.robust")
+
+
+# --------------------------------------------------------------------------- 8: odometry too short
+
+
+def _short_odometry() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t = np.arange(0.0, 1.0, 0.1)  # ends at 0.9 s, period 0.1 s
+    return t, np.ones_like(t), np.zeros_like(t)
+
+
+def test_the_mapper_refuses_frames_after_the_odometry() -> None:
+    mapper = Mapper(MappingConfig(), np.zeros(3), *_short_odometry())
+    mapper.add_frame(FrameObservations(t=0.0))
+    mapper.add_frame(FrameObservations(t=1.0))  # within one period: fine
+    with pytest.raises(DriveError) as exc:
+        mapper.add_frame(FrameObservations(t=5.0))
+    _one_line(exc, "observations reach 5.000 s", "after the odometry", "0.900 s")
+
+
+def test_the_mapper_refuses_frames_before_the_odometry() -> None:
+    t, v, w = _short_odometry()
+    mapper = Mapper(MappingConfig(), np.zeros(3), t + 2.0, v, w)
+    with pytest.raises(DriveError) as exc:
+        mapper.add_frame(FrameObservations(t=0.0))
+    _one_line(exc, "observations start at 0.000 s", "before the odometry (2.000 s)")
+
+
+def test_the_localizer_refuses_frames_after_the_odometry() -> None:
+    localizer = Localizer(make_map(), LocalizationConfig(), *_short_odometry(), np.zeros(3))
+    localizer.step(FrameObservations(t=0.5))
+    with pytest.raises(DriveError) as exc:
+        localizer.step(FrameObservations(t=3.0))
+    _one_line(exc, "observations reach 3.000 s", "after the odometry")

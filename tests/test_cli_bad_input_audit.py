@@ -1,0 +1,196 @@
+"""Bad input found by the CLI audit: each case is one line on stderr, exit code 2, no
+traceback, checked before any work, and nothing already written is lost."""
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from semslam.cli import app
+from semslam.io import save_map, write_tum
+from semslam.types import SemanticMap
+
+runner = CliRunner()
+
+
+def _run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def _fails(result, *words):
+    """Exit code 2 and one line on stderr that holds every word; no traceback."""
+    assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.output
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def small_drive(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "drive"
+    result = _run(
+        "simulate", out, "--preset", "small", "--seed", "1", "--no-images", "--no-progress"
+    )
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def _route(path: Path, xy) -> Path:
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    poses = np.column_stack([xy, np.zeros(len(xy))])
+    write_tum(path, np.arange(len(xy), dtype=float) * 0.1, poses)
+    return path
+
+
+# 1
+def test_localize_refuses_a_far_init_before_any_work(small_drive, tmp_path):
+    result = _run("localize", small_drive, "--map", small_drive / "world.json",
+                  "-o", tmp_path / "x.tum", "--init", "1e308,1e308,0")
+    _fails(result, "--init", "x and y must be within 1e6 m")
+    assert not (tmp_path / "x.tum").exists()
+
+
+# 2
+@pytest.mark.parametrize("command", ["map", "localize", "optimize", "accuracy"])
+def test_empty_output_path(small_drive, tmp_path, command):
+    args = {
+        "map": ("map", small_drive),
+        "localize": ("localize", small_drive, "--map", small_drive / "world.json"),
+        "optimize": ("optimize", tmp_path / "g.g2o"),
+        "accuracy": ("accuracy", small_drive / "world.json"),
+    }[command]
+    _fails(_run(*args, "-o", ""), "-o: empty path")
+
+
+# 3
+def test_tags_refuses_tiny_focal_lengths(tmp_path):
+    image = tmp_path / "i.png"
+    cv2.imwrite(str(image), np.full((64, 64), 128, np.uint8))
+    result = _run("tags", image, "--intrinsics", "1e-300,1e-300,32,32", "--tag-size", "0.065")
+    _fails(result, "--intrinsics", "at least 1 px")
+
+
+# 4
+@pytest.mark.parametrize("option", ["--seed", "--drive"])
+def test_simulate_refuses_negative_seed_and_drive(tmp_path, option):
+    result = _run("simulate", tmp_path / "x", "--preset", "small", option, "-1", "--no-images")
+    _fails(result, option, "-1")
+    assert not (tmp_path / "x").exists()
+
+
+def test_demo_refuses_a_negative_seed_and_creates_no_folder(tmp_path):
+    _fails(_run("demo", tmp_path / "demo", "--seed", "-1"), "--seed", "-1")
+    assert not (tmp_path / "demo").exists()
+
+
+# 5
+@pytest.mark.parametrize("frames", ["0", "-1"])
+def test_bench_refuses_no_frames(frames):
+    _fails(_run("bench", "--frames", frames), "--frames", "at least 1")
+
+
+# 6
+@pytest.mark.parametrize(("size", "decimate", "left"), [((792, 1056), "400", "2 x 1"),
+                                                        ((16, 16), "8", "2 x 2")])
+def test_tags_refuses_a_decimation_that_leaves_almost_no_image(tmp_path, size, decimate, left):
+    image = tmp_path / "i.png"
+    cv2.imwrite(str(image), np.full(size, 200, np.uint8))
+    result = _run("tags", image, "--intrinsics", "329.9,332.9,8,8", "--tag-size", "0.065",
+                  "--decimate", decimate)
+    _fails(result, str(image), f"--decimate {decimate} leaves a {left} px image")
+
+
+# 7
+@pytest.mark.parametrize("xy", [[(1.0, 2.0)], [(1.0, 2.0), (1.0, 2.0)]])
+def test_plan_tags_refuses_a_route_without_length_and_writes_nothing(small_drive, tmp_path, xy):
+    route = _route(tmp_path / "two.tum", xy)
+    out = tmp_path / "p"
+    result = _run("plan-tags", small_drive / "world.json", "--route", route, "-o", out,
+                  "--count", "1", "--random-trials", "2")
+    _fails(result, str(route), "the route needs at least two poses and some length")
+    assert not (out / "tag_plan.json").exists()
+
+
+def test_plan_tags_caps_count(small_drive, tmp_path):
+    route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
+    result = _run("plan-tags", small_drive / "world.json", "--route", route,
+                  "-o", tmp_path / "p", "--count", "100000")
+    _fails(result, "--count", "1000")
+
+
+# 8
+def test_localize_refuses_an_output_that_is_its_own_track_csv(small_drive, tmp_path):
+    out = tmp_path / "t.csv"
+    out.write_text("keep\n")
+    result = _run("localize", small_drive, "--map", small_drive / "world.json", "-o", out)
+    _fails(result, f"-o {out}", "track CSV")
+    assert out.read_text() == "keep\n"
+
+
+def test_map_refuses_an_output_that_a_by_product_would_replace(small_drive, tmp_path):
+    _fails(_run("map", small_drive, "-o", tmp_path / "m.g2o"), "m.g2o", "replace")
+
+
+# 9
+def test_outputs_are_checked_before_the_work(small_drive, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("keep\n")
+    world = small_drive / "world.json"
+    route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
+    cases = [
+        ("map", small_drive, "-o", afile / "m.json"),
+        ("localize", small_drive, "--map", world, "-o", afile / "t.tum"),
+        ("optimize", tmp_path / "g.g2o", "-o", afile / "o.g2o"),
+        ("accuracy", world, "-o", afile),
+        ("plan-tags", world, "--route", route, "-o", afile / "p"),
+        ("simulate", afile / "d", "--preset", "small", "--no-images"),
+        ("detect", tmp_path / "i.png", "--overlay", afile),
+    ]
+    for args in cases:
+        line = _fails(_run(*args), "afile")
+        assert "is a file, not a folder" in line, line
+    assert afile.read_text() == "keep\n"
+    _fails(_run("map", small_drive, "-o", tmp_path), "is a folder, not a file")
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc")
+def test_an_output_in_an_unwritable_folder_is_named_up_front(small_drive):
+    line = _fails(_run("map", small_drive, "-o", "/proc/m.json"), "-o /proc/m.json",
+                  "cannot write in /proc")
+    assert ".tmp" not in line
+
+
+# 10
+def test_localize_fails_when_no_frame_gets_a_pose(small_drive, tmp_path):
+    empty = tmp_path / "empty.json"
+    save_map(empty, SemanticMap())
+    out = tmp_path / "t.tum"
+    out.write_text("keep\n")
+    result = _run("localize", small_drive, "--map", empty, "-o", out, "--init", "auto",
+                  "--no-progress")
+    _fails(result, "no pose was found in any frame")
+    assert out.read_text() == "keep\n" and not out.with_suffix(".csv").exists()
+
+
+# 11
+def test_detect_writes_no_overlay_when_an_image_is_bad(tmp_path):
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), np.zeros((600, 600, 3), np.uint8))
+    bad = tmp_path / "zero.png"
+    bad.write_bytes(b"")
+    result = _run("detect", good, bad, "--overlay", tmp_path / "ov", "--no-lines")
+    _fails(result, str(bad))
+    assert not (tmp_path / "ov" / "good.png").exists()
+
+
+def test_detect_names_the_image_of_the_wrong_size(tmp_path):
+    image = tmp_path / "wide.png"
+    cv2.imwrite(str(image), np.zeros((79, 105, 3), np.uint8))
+    line = _fails(_run("detect", image), "105 x 79")
+    assert line.startswith(f"semslam: error: {image}: "), line
