@@ -194,3 +194,21 @@ def test_detect_names_the_image_of_the_wrong_size(tmp_path):
     cv2.imwrite(str(image), np.zeros((79, 105, 3), np.uint8))
     line = _fails(_run("detect", image), "105 x 79")
     assert line.startswith(f"semslam: error: {image}: "), line
+
+
+def test_map_from_images_refuses_a_front_image_of_the_wrong_size(tmp_path):
+    drive = tmp_path / "d"
+    result = runner.invoke(app, ["simulate", str(drive), "--preset", "small", "--seed", "1",
+                                 "--no-images", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    times = (drive / "frames.csv").read_text().split()[1:]
+    (drive / "img").mkdir()
+    cv2.imwrite(str(drive / "img" / "f0.png"), np.full((400, 640), 128, np.uint8))
+    rows = ["t,front", f"{times[0]},img/f0.png", *(f"{t}," for t in times[1:])]
+    (drive / "frames.csv").write_text("\n".join(rows) + "\n")
+    result = runner.invoke(app, ["map", str(drive), "-o", str(tmp_path / "m.json"),
+                                 "--observations", "images", "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "f0.png: 640 x 400 px, but rig.json gives the front camera 1280 x 800" in result.stderr
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "m.json").exists()

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from semslam.config import SemslamConfig
-from semslam.errors import DriveError
+from semslam.errors import DriveError, FormatError, PerceptionError
 from semslam.progress import progress_bar
 from semslam.types import FrameObservations
 
@@ -54,11 +54,20 @@ def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
     for i in indices:
         slots, markings, tags = (), (), ()
         if perception is not None and frames.images["topview"][i]:
-            det = perception.detect(read_image(drive.image_path("topview", i)))
+            path = drive.image_path("topview", i)
+            try:
+                det = perception.detect(read_image(path))
+            except PerceptionError as e:  # name the image: the detector does not know it
+                raise PerceptionError(f"{path}: {e}") from None
             slots, markings = perception.slot_observations(det), det.markings
         if _WORKER["front"] and frames.images["front"][i]:
-            image = read_image(drive.image_path("front", i), grey=True)
-            tags = observe_tags(image, drive.rig.cameras["front"], _WORKER["tag_settings"])
+            path = drive.image_path("front", i)
+            image = read_image(path, grey=True)
+            camera = drive.rig.cameras["front"]
+            if (image.shape[1], image.shape[0]) != tuple(camera.size):
+                raise FormatError(f"{path}: {image.shape[1]} x {image.shape[0]} px, but rig.json "
+                                  f"gives the front camera {camera.size[0]} x {camera.size[1]}")
+            tags = observe_tags(image, camera, _WORKER["tag_settings"])
         out.append(FrameObservations(float(frames.t[i]), slots, tags, markings))
     return out
 
