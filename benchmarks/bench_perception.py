@@ -1,7 +1,7 @@
 """Slot perception (issue 5): held-out simulated top views, real ps2.0 images, speed.
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
-        [--json out.json]
+        [--json out.json] [--points-model OTHER.onnx]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -26,6 +26,7 @@ import numpy as np
 from _common import report
 
 from semslam.evaluation.detection_metrics import DetectionCounts, score_image
+from semslam.perception.slots import SlotDetector
 from semslam.perception.topview_perception import TopviewPerception, into_slot_direction
 from semslam.pipeline.detect import evaluate_detection_folder
 from semslam.simulation.topview_samples import sample_topviews
@@ -142,8 +143,11 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, default=100)
     parser.add_argument("--per-world", type=int, default=5)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--points-model", type=Path, default=None,
+                        help="another marking-point ONNX file (default: the shipped one)")
     args = parser.parse_args()
-    perception = TopviewPerception(lines=False)
+    perception = TopviewPerception(lines=False, slot_detector=None if args.points_model is None
+                                   else SlotDetector(args.points_model))
     sim = simulated(perception, args.worlds, args.per_world)
     keys = ("images", "point_precision", "point_recall", "slot_precision", "slot_recall",
             "shape_accuracy", "labels_redirected")
