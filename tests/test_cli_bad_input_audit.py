@@ -212,3 +212,23 @@ def test_map_from_images_refuses_a_front_image_of_the_wrong_size(tmp_path):
     assert "f0.png: 640 x 400 px, but rig.json gives the front camera 1280 x 800" in result.stderr
     assert "Traceback" not in result.output
     assert not (tmp_path / "m.json").exists()
+
+
+def test_map_and_localize_refuse_odometry_cut_short(tmp_path):
+    drive = tmp_path / "d"
+    result = runner.invoke(app, ["simulate", str(drive), "--preset", "small", "--seed", "1",
+                                 "--no-images", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    built = runner.invoke(app, ["map", str(drive), "-o", str(tmp_path / "m.json"),
+                                "--no-progress"])
+    assert built.exit_code == 0, built.output
+    lines = (drive / "odometry.csv").read_text().splitlines()
+    (drive / "odometry.csv").write_text("\n".join(lines[:500]) + "\n")
+    for args in (["map", str(drive), "-o", str(tmp_path / "m2.json")],
+                 ["localize", str(drive), "--map", str(tmp_path / "m.json"),
+                  "-o", str(tmp_path / "t.tum")]):
+        result = runner.invoke(app, [*args, "--no-progress"])
+        assert result.exit_code == 2, result.output
+        assert str(drive) in result.stderr and "is odometry.csv cut short?" in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "m2.json").exists() and not (tmp_path / "t.tum").exists()

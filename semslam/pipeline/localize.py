@@ -16,7 +16,7 @@ import numpy as np
 
 from semslam.config import SemslamConfig
 from semslam.errors import DriveError
-from semslam.pipeline.mapping import load_observations
+from semslam.pipeline.mapping import check_observation_times, load_observations
 from semslam.progress import progress_bar
 
 
@@ -80,6 +80,7 @@ def localize_drive(
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
     frames = load_observations(drive, observations, config, show_progress)
+    check_observation_times(drive_folder, frames, odometry.t)
     initial = drive.start_pose if init is None else given_init
     started = time.perf_counter()
     localizer = Localizer(

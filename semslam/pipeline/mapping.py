@@ -18,6 +18,7 @@ from pathlib import Path
 from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import DriveError
+from semslam.geometry import FloatArray
 from semslam.progress import progress_bar
 
 OBSERVATION_SOURCES = ("exact", "noisy", "cached", "images")
@@ -64,6 +65,23 @@ def load_observations(
     return drive.observations(source)
 
 
+def check_observation_times(drive_folder: Path, frames: list, odometry_t: FloatArray) -> None:
+    """The observations lie within the odometry: none before its first sample, none more
+    than one sample period after its last (odometry.csv cut short).
+
+    Raises:
+        DriveError: naming the drive folder and the times.
+    """
+    from semslam.io.odometry import check_covered, odometry_span
+
+    span = odometry_span(odometry_t)
+    try:
+        for frame in (frames[:1] + frames[-1:]) if frames else []:
+            check_covered(frame.t, span, start=True)
+    except DriveError as e:
+        raise DriveError(f"{drive_folder}: {e}") from None
+
+
 def build_map(
     drive_folder: Path,
     map_path: Path,
@@ -81,11 +99,7 @@ def build_map(
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
     frames = load_observations(drive, observations, config, show_progress)
-    if frames and frames[0].t < odometry.t[0] - 1e-6:
-        raise DriveError(
-            f"{drive_folder}: observations start at {frames[0].t:.3f} s, before the "
-            f"odometry ({odometry.t[0]:.3f} s)"
-        )
+    check_observation_times(drive_folder, frames, odometry.t)
     started = time.perf_counter()
     mapper = Mapper(config.mapping, drive.start_pose, odometry.t, odometry.speed, odometry.yaw_rate)
     with progress_bar(len(frames), "mapping", show_progress) as bar:
