@@ -673,9 +673,29 @@ def dump_config(config: ConfigOption = None) -> None:
         _fail(e)
 
 
-def run() -> None:  # pragma: no cover - console entry for `python -m semslam`
-    app(prog_name="semslam")
+def run() -> None:
+    """The console entry (`semslam`, `python -m semslam`): the commands, with a usage error
+    (unknown command or option, missing argument, a value of the wrong type) as one line on
+    stderr, exit code 2, instead of click's framed box."""
+    try:
+        code = app(prog_name="semslam", standalone_mode=False)
+    except KeyboardInterrupt:
+        code = 130
+    except Exception as e:  # click's usage errors (typer may vendor click): by their interface
+        if type(e).__name__ == "Abort":
+            typer.echo("semslam: aborted", err=True)
+            code = 130
+        elif hasattr(e, "format_message") and getattr(e, "exit_code", None) == 2:
+            ctx = getattr(e, "ctx", None)
+            command = ctx.command_path if ctx is not None else "semslam"
+            if e.format_message():  # empty: no arguments at all, the help is printed already
+                typer.echo(f"{command}: error: {e.format_message()} (see {command} --help)",
+                           err=True)
+            code = 2
+        else:
+            raise
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(run())
+    run()

@@ -232,3 +232,21 @@ def test_map_and_localize_refuse_odometry_cut_short(tmp_path):
         assert str(drive) in result.stderr and "is odometry.csv cut short?" in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "m2.json").exists() and not (tmp_path / "t.tum").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(["map"], "semslam map: error: Missing argument 'drive'."),
+     (["nosuch"], "semslam: error: No such command 'nosuch'."),
+     (["accuracy", "m.json", "-o", "x", "--grid-step", "abc"],
+      "semslam accuracy: error: Invalid value for '--grid-step'")],
+)
+def test_usage_errors_are_one_line_through_the_console_entry(args, message):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
+                          text=True, check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(message) and len(proc.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
