@@ -658,7 +658,7 @@ def predicted_on_grid(
             finite, or a grid of more than :data:`MAX_GRID_CELLS` cells (refused before
             anything is allocated: a tiny step or a far-away landmark or route)."""
     x0, y0, x1, y1 = bounds or geometry.bounds()
-    _grid_size(x0, y0, x1, y1, step)
+    _check_grid(x0, y0, x1, y1, step)
     xs = np.arange(x0, x1 + 1e-9, step)
     ys = np.arange(y0, y1 + 1e-9, step)
     sigma = np.zeros((len(ys), len(xs)))
@@ -677,8 +677,8 @@ MAX_GRID_CELLS = 4_000_000
 """Most cells :func:`predicted_on_grid` computes (at a few ms a cell, already hours)."""
 
 
-def _grid_size(x0: float, y0: float, x1: float, y1: float, step: float) -> int:
-    """Cells of the grid over the bounds, checked against :data:`MAX_GRID_CELLS`."""
+def _check_grid(x0: float, y0: float, x1: float, y1: float, step: float) -> None:
+    """Refuse a step, bounds or cell count (:data:`MAX_GRID_CELLS`) the grid cannot have."""
     if not (math.isfinite(step) and step > 0):
         raise ConfigError(
             f"accuracy: the grid step must be a positive number of metres, got {step}"
@@ -693,7 +693,6 @@ def _grid_size(x0: float, y0: float, x1: float, y1: float, step: float) -> int:
             f"{y1 - y0:.4g} m at {step:g} m) is more than {MAX_GRID_CELLS:,}; raise "
             "--grid-step or check the map extent (and the route's)"
         )
-    return nx * ny
 
 
 def worst_stretches(

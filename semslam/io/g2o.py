@@ -180,14 +180,6 @@ def information_upper(information: FloatArray) -> FloatArray:
     return m[np.triu_indices(m.shape[0])]
 
 
-def _positive_definite(m: FloatArray) -> bool:
-    try:
-        np.linalg.cholesky(m)
-    except np.linalg.LinAlgError:
-        return False
-    return True
-
-
 MAX_INFORMATION = 1e15
 """Largest information entry (or eigenvalue) accepted: a standard deviation of 3e-8."""
 
@@ -203,12 +195,12 @@ def information_problem(m: FloatArray) -> str | None:
     definite, an entry above :data:`MAX_INFORMATION`, an eigenvalue below
     :data:`MIN_INFORMATION`, or a condition number above :data:`MAX_CONDITION`
     (gtsam stops on such matrices with an indeterminate system)."""
-    if not _positive_definite(m):
+    eigenvalues = np.linalg.eigvalsh(m)
+    if not eigenvalues[0] > 0:
         return "is not positive definite"
     largest_entry = float(np.max(np.abs(m)))
     if largest_entry > MAX_INFORMATION:
         return f"has an entry of {largest_entry:g} (at most {MAX_INFORMATION:g})"
-    eigenvalues = np.linalg.eigvalsh(m)
     if eigenvalues[0] < MIN_INFORMATION:
         return f"has an eigenvalue of {eigenvalues[0]:g} (at least {MIN_INFORMATION:g})"
     condition = float(eigenvalues[-1] / eigenvalues[0])

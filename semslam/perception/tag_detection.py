@@ -234,6 +234,10 @@ def as_gray(image: object) -> NDArray[np.uint8]:
     return np.ascontiguousarray(image)
 
 
+MIN_DECIMATED_PX = 8
+"""Smallest side (px) of the decimated image the AprilTag library is given."""
+
+
 def detect_tags(
     image: object,
     family: str | TagFamily = TagFamily.TAG36H11,
@@ -250,10 +254,19 @@ def detect_tags(
         The detections (empty for a blank image).
 
     Raises:
-        PerceptionError: a bad image or an unknown family.
+        PerceptionError: a bad image, an unknown family, or a decimation that leaves
+            fewer than :data:`MIN_DECIMATED_PX` pixels a side.
     """
     fam = parse_family(family)
     gray = as_gray(image)
+    height, width = gray.shape
+    k = settings.quad_decimate
+    if k > 1 and min(width, height) / k < MIN_DECIMATED_PX:
+        # the AprilTag library kills the process (no error) on such images
+        raise PerceptionError(
+            f"decimate {k:g} leaves a {int(width / k)} x {int(height / k)} px image "
+            f"(needs at least {MIN_DECIMATED_PX} px a side)"
+        )
     detector = configured_detector(fam, settings)
     out = []
     for d in detector.detect(gray):

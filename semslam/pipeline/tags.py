@@ -35,8 +35,6 @@ from semslam.perception.tag_pose import PositionVariant
 from semslam.perception.tags import TagEstimate, TagSettings, estimate_tags
 from semslam.rig import Camera, CameraModel
 
-MIN_DECIMATED_PX = 8  # smallest side of the decimated image the detector is given
-
 
 def parse_numbers(text: str, name: str, counts: Sequence[int]) -> list[float]:
     """Comma-separated finite numbers, as many as one of ``counts``, or a one-line error."""
@@ -138,14 +136,6 @@ def tags_in_images(
     out = []
     for path in images:
         gray = read_image(path, grey=True)
-        height, width = gray.shape[:2]
-        if decimate > 1 and min(width / decimate, height / decimate) < MIN_DECIMATED_PX:
-            # the AprilTag library crashes (not an error: the process dies) on such images
-            raise PerceptionError(
-                f"{path}: --decimate {decimate:g} leaves a {int(width / decimate)} x "
-                f"{int(height / decimate)} px image (needs at least {MIN_DECIMATED_PX} px "
-                "a side)"
-            )
         camera = make_camera(intrinsics, distortion, fisheye, (gray.shape[1], gray.shape[0]))
         try:
             estimates = estimate_tags(gray, camera, settings)

@@ -357,3 +357,11 @@ def test_tags_command_prints_poses_as_json(rendered, tmp_path: Path) -> None:
     missing = runner.invoke(app, ["tags", str(tmp_path / "none.png"), "--intrinsics", k,
                                   "--tag-size", "0.5"])
     assert missing.exit_code == 2 and "none.png" in missing.output
+
+
+def test_a_decimation_that_leaves_almost_no_image_is_refused_not_crashed() -> None:
+    # the AprilTag library kills the process on a decimated image of 2 px a side
+    image = np.full((16, 16), 200, np.uint8)
+    with pytest.raises(PerceptionError, match="decimate 8 leaves a 2 x 2 px image"):
+        detect_tags(image, settings=DetectorSettings(quad_decimate=8.0))
+    assert detect_tags(image, settings=DetectorSettings(quad_decimate=2.0)) == ()
