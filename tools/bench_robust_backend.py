@@ -150,7 +150,7 @@ def run_file(
 
 
 def _is_null(mix, k: int) -> bool:
-    from semslam.mapping.pose_graph import null_components
+    from semslam.mapping.g2o_factors import null_components
 
     return null_components(mix)[k]
 

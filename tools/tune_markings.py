@@ -15,7 +15,7 @@ plus the recall within 5 m at the lowest threshold that reaches ``--precision`` 
 At the end the regression is fitted on the tuning views and the confidence threshold is
 set to the lowest one whose precision for lines within 5 m reaches ``--precision`` on
 separate validation views (seeds 3000..); the result is written as JSON: paste ``params``
-into ``TUNED`` in ``semslam/perception/markings.py``.
+into ``TUNED`` in ``semslam/perception/markings/params.py``.
 """
 
 from __future__ import annotations

@@ -14,14 +14,16 @@ from semslam.io.g2o import (
     read_g2o,
     write_g2o,
 )
-from semslam.mapping.pose_graph import (
-    _Mixture,
+from semslam.mapping.g2o_factors import (
+    CompiledMixture,
     between_residual,
+    null_components,
+    point_residual,
+)
+from semslam.mapping.pose_graph import (
     innovation_chi2,
     leave_out_chi2,
-    null_components,
     optimize_pose_graph,
-    point_residual,
 )
 from semslam.pipeline.optimize import optimize_g2o_file
 
@@ -153,7 +155,7 @@ def test_point_residual_jacobians_match_numerical():
 
 
 def test_null_detection_and_native_path():
-    mix = _Mixture(_mixture(0, 1, np.zeros(3)))
+    mix = CompiledMixture(_mixture(0, 1, np.zeros(3)))
     assert null_components(mix.mixture) == [False, True]
     # weights 1 and 0.01 as written: the null's prior is 0.01 / 1.01, once
     assert mix.native_null.weight == pytest.approx(0.01 / 1.01)
@@ -167,7 +169,7 @@ def test_null_detection_and_native_path():
         mix.mixture.components
         + (MixtureComponent(1.0, Edge2D(0, 2, np.zeros(3), _information(SIGMA_LOOP))),),
     )
-    factor, used = _Mixture(other).factor([0, 2])
+    factor, used = CompiledMixture(other).factor([0, 2])
     assert isinstance(factor, gtsam.CustomFactor) and used == [0, 2, 1]
 
 
