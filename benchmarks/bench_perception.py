@@ -13,6 +13,12 @@
 - real ps2.0 samples (26 images, DMPR-PS labels): points and slots, ps2.0 metric, with
   the labels' L directions turned to the separator (semslam's convention) and as labelled;
 - speed: median ms per view of marking points + slots, IDs, and both together.
+
+The simulated points are also scored by DMPR-PS's own protocol, which its published 0.99
+comes from (github.com/Teoge/DMPR-PS): its test set keeps only the images whose labelled
+points all lie within 260 px of the centre (``prepare_dataset.boundary_check``), and its
+decoder drops every prediction within 5 % (30 px) of the border
+(``get_predicted_points``, ``BOUNDARY_THRESH``).
 """
 
 from __future__ import annotations
@@ -32,6 +38,19 @@ from semslam.pipeline.detect import evaluate_detection_folder
 from semslam.simulation.topview_samples import sample_topviews
 
 PS20 = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "ps2.0-samples"
+DMPR_LABEL_RADIUS_PX = 260.0  # DMPR-PS boundary_check: labels within this of the centre
+DMPR_BORDER_PX = 30.0  # DMPR-PS BOUNDARY_THRESH 0.05 of 600 px: predictions dropped nearer
+
+
+def dmpr_protocol_keeps(labels: np.ndarray, size: int = 600) -> bool:
+    """Whether DMPR-PS's test set would keep a view with these (N, 2) labelled points."""
+    centre = (size - 1) / 2.0
+    return not len(labels) or bool((np.abs(labels - centre) <= DMPR_LABEL_RADIUS_PX).all())
+
+
+def dmpr_protocol_detections(pts: np.ndarray, size: int = 600) -> np.ndarray:
+    """Which (N, 2) detections DMPR-PS's decoder would keep (not within 30 px of the border)."""
+    return ((pts >= DMPR_BORDER_PX) & (pts <= size - 1 - DMPR_BORDER_PX)).all(axis=1)
 
 
 def _arrays(det):
@@ -44,6 +63,7 @@ def _arrays(det):
 
 def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dict:
     total = DetectionCounts()
+    dmpr = DetectionCounts()  # DMPR-PS's protocol (module docstring)
     ids_right = ids_total = ids_read = 0
     confident = confident_right = 0
     t_slots, t_ids, t_both = [], [], []
@@ -92,6 +112,11 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
             a.shapes[visible],
             slots,
         )
+        if dmpr_protocol_keeps(a.points):
+            k = keep_det & dmpr_protocol_detections(pts)
+            none = np.zeros((0, 2), int)
+            dmpr += score_image(pts[k], dirs[k], shapes[k], conf[k], none, a.points[visible],
+                                a.directions[visible], a.shapes[visible], none)
         # IDs: each visible painted label against the detected slot whose patch holds it
         anchors = np.array(
             [
@@ -118,6 +143,7 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
                     confident += 1
                     confident_right += reading.label == label
     s = total.summary()
+    d = dmpr.summary()
     return {
         "views": s["images"],
         "point_precision": round(s["point_precision"], 4),
@@ -126,6 +152,12 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
         "slot_recall": round(s["slot_recall"], 4),
         "shape_accuracy": round(s["shape_accuracy"], 4),
         "points": [s["point_true_positives"], s["point_detections"], s["point_labels"]],
+        "dmpr_protocol": {
+            "views": d["images"],
+            "point_precision": round(d["point_precision"], 4),
+            "point_recall": round(d["point_recall"], 4),
+            "points": [d["point_true_positives"], d["point_detections"], d["point_labels"]],
+        },
         "ids_visible": ids_total,
         "ids_read": ids_read,
         "id_accuracy_of_read": round(ids_right / max(ids_read, 1), 4),
@@ -149,6 +181,7 @@ def main() -> None:
     perception = TopviewPerception(lines=False, slot_detector=None if args.points_model is None
                                    else SlotDetector(args.points_model))
     sim = simulated(perception, args.worlds, args.per_world)
+    dm = sim["dmpr_protocol"]
     keys = ("images", "point_precision", "point_recall", "slot_precision", "slot_recall",
             "shape_accuracy", "labels_redirected")
     real, real_raw = ({k: r[k] for k in keys} for r in (
@@ -164,6 +197,8 @@ def main() -> None:
         f"{sim['id_accuracy_of_read']:.3f} / {sim['id_accuracy_of_visible']:.3f} | "
         f"{sim['id_accuracy_confident']:.3f} ({sim['ids_confident']}) | {sim['slots_ms']:.1f} / "
         f"{sim['ids_ms']:.1f} / {sim['slots_and_ids_ms']:.1f} |",
+        f"| simulated held-out, DMPR-PS's protocol (points) | {dm['views']} | "
+        f"{dm['point_precision']:.3f} / {dm['point_recall']:.3f} | - | - | - | - |",
         *(f"| real ps2.0 samples, {name} | {r['images']} | {r['point_precision']:.3f} / "
           f"{r['point_recall']:.3f} | {r['slot_precision']:.3f} / {r['slot_recall']:.3f}"
           " | - | - | - |"
