@@ -14,7 +14,7 @@
   the labels' L directions turned to the separator (semslam's convention) and as labelled;
 - speed: median ms per view of marking points + slots, IDs, and both together.
 
-The simulated points are also scored by DMPR-PS's own protocol, which its published 0.99
+The points (simulated and real) are also scored by DMPR-PS's own protocol, which its published 0.99
 comes from (github.com/Teoge/DMPR-PS): its test set keeps only the images whose labelled
 points all lie within 260 px of the centre (``prepare_dataset.boundary_check``), and its
 decoder drops every prediction within 5 % (30 px) of the border
@@ -32,6 +32,8 @@ import numpy as np
 from _common import report
 
 from semslam.evaluation.detection_metrics import DetectionCounts, score_image
+from semslam.io.dmpr_labels import read_dmpr_labels
+from semslam.io.images import read_image
 from semslam.perception.slots import SlotDetector
 from semslam.perception.topview_perception import TopviewPerception, into_slot_direction
 from semslam.pipeline.detect import evaluate_detection_folder
@@ -51,6 +53,27 @@ def dmpr_protocol_keeps(labels: np.ndarray, size: int = 600) -> bool:
 def dmpr_protocol_detections(pts: np.ndarray, size: int = 600) -> np.ndarray:
     """Which (N, 2) detections DMPR-PS's decoder would keep (not within 30 px of the border)."""
     return ((pts >= DMPR_BORDER_PX) & (pts <= size - 1 - DMPR_BORDER_PX)).all(axis=1)
+
+
+def real_dmpr_protocol(perception: TopviewPerception) -> dict:
+    """The real ps2.0 samples' points by DMPR-PS's protocol (separator convention): every
+    sample passes its boundary check, so only its border rule on the detections applies."""
+    total = DetectionCounts()
+    views = 0
+    for label_path in sorted((PS20 / "labels").glob("*.json")):
+        image_path = PS20 / "images" / f"{label_path.stem}.jpg"
+        labels = read_dmpr_labels(label_path).with_separator_directions()
+        if not image_path.is_file() or not dmpr_protocol_keeps(labels.points):
+            continue
+        pts, dirs, shapes, conf = _arrays(perception.detect(read_image(image_path)))
+        k = dmpr_protocol_detections(pts)
+        none = np.zeros((0, 2), int)
+        total += score_image(pts[k], dirs[k], shapes[k], conf[k], none, labels.points,
+                             labels.directions, labels.shapes, none)
+        views += 1
+    s = total.summary()
+    return {"views": views, "point_precision": round(s["point_precision"], 4),
+            "point_recall": round(s["point_recall"], 4)}
 
 
 def _arrays(det):
@@ -182,6 +205,7 @@ def main() -> None:
                                    else SlotDetector(args.points_model))
     sim = simulated(perception, args.worlds, args.per_world)
     dm = sim["dmpr_protocol"]
+    real_dm = real_dmpr_protocol(perception)
     keys = ("images", "point_precision", "point_recall", "slot_precision", "slot_recall",
             "shape_accuracy", "labels_redirected")
     real, real_raw = ({k: r[k] for k in keys} for r in (
@@ -204,10 +228,13 @@ def main() -> None:
           " | - | - | - |"
           for name, r in (("L directions turned to the separator", real),
                           ("L directions as labelled", real_raw))),
+        f"| real ps2.0 samples, DMPR-PS's protocol (points) | {real_dm['views']} | "
+        f"{real_dm['point_precision']:.3f} / {real_dm['point_recall']:.3f} | - | - | - | - |",
     ]
     report(
         "\n".join(md),
-        {"simulated": sim, "ps2.0": real, "ps2.0_label_directions": real_raw},
+        {"simulated": sim, "ps2.0": real, "ps2.0_label_directions": real_raw,
+         "ps2.0_dmpr_protocol": real_dm},
         None if args.json is None else __import__("pathlib").Path(args.json),
     )
 
