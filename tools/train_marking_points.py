@@ -192,23 +192,24 @@ def _photometric(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         f = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR).astype(np.float32)
     f *= rng.uniform(0.8, 1.2, size=3).astype(np.float32)  # colour cast
     mean = f.mean()
-    f = (f - mean) * rng.uniform(0.5, 1.4) + mean * rng.uniform(0.55, 1.45)  # contrast, light
+    gain = np.float32(rng.uniform(0.5, 1.4))
+    f = f * gain + np.float32(mean * (rng.uniform(0.55, 1.45) - gain))  # contrast, light
     if rng.random() < 0.4:  # illumination gradient / light pool
         yy, xx = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) / INPUT
         g = rng.uniform(-0.5, 0.5) * (xx - 0.5) + rng.uniform(-0.5, 0.5) * (yy - 0.5)
         f *= (1.0 + g)[..., None]
     if rng.random() < 0.1:
         f[:] = f.mean(axis=2, keepdims=True)
-    f = np.clip(f, 0, 255)
-    if rng.random() < 0.5:
-        gamma = rng.uniform(0.7, 1.4)
-        f = 255.0 * (f / 255.0) ** gamma
+    gamma = rng.uniform(0.7, 1.4) if rng.random() < 0.5 else 1.0
     if rng.random() < 0.3:
         s = rng.uniform(0.3, 1.3)
         f = cv2.GaussianBlur(f, (0, 0), s)
     if rng.random() < 0.5:
-        f += rng.normal(0, rng.uniform(1, 10), size=f.shape).astype(np.float32)
+        f += rng.standard_normal(f.shape, dtype=np.float32) * np.float32(rng.uniform(1, 10))
     out = np.clip(f, 0, 255).astype(np.uint8)
+    if gamma != 1.0:  # a table on the 8-bit image: 20x cheaper than a float power
+        out = cv2.LUT(out, np.clip(255.0 * (np.arange(256) / 255.0) ** gamma, 0, 255)
+                      .astype(np.uint8))
     if rng.random() < 0.3:
         ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(25, 90))])
         out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
@@ -350,7 +351,29 @@ def export_onnx(net, out: Path) -> None:
 # ----------------------------------------------------------------------------- training
 
 
+def _augmented_batch(
+    images: np.ndarray, labels: list, idx: np.ndarray, seed: int
+) -> tuple[np.ndarray, ...]:
+    """One augmented batch: (uint8 NHWC images, targets, weights), from its own seed.
+
+    (Made in the training loop: a separate augmenting process only competes with torch's
+    two threads on this 2-core machine, 0.31 against 0.27 s per step.)
+    """
+    rng = np.random.default_rng(seed)
+    xs, ts, ws = [], [], []
+    for i in idx:
+        img, lab = augment(images[i], labels[i], rng)
+        t, w = encode_targets(lab)
+        xs.append(img)
+        ts.append(t)
+        ws.append(w)
+    return np.stack(xs), np.stack(ts), np.stack(ws)
+
+
 def train(args: argparse.Namespace) -> None:
+    """Train on ``--threads`` torch threads; bf16 autocast and channels-last convolutions
+    unless ``--fp32`` (2.3x faster steps on this machine's AVX-512 BF16 CPU; the weights
+    and the export stay float32)."""
     import torch
 
     torch.manual_seed(args.seed)
@@ -364,61 +387,55 @@ def train(args: argparse.Namespace) -> None:
     net = build_model()
     if args.init is not None:  # continue from saved weights (a second, shorter run)
         net.load_state_dict(torch.load(args.init))
+    fast = not args.fp32
+    if fast:
+        net = net.to(memory_format=torch.channels_last)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     steps_per_epoch = n // args.batch
     total = steps_per_epoch * args.epochs
     ckpt = args.cache / "marking_points_last.pt"  # not beside the model: package data
     budget = args.max_minutes * 60.0 if args.max_minutes else float("inf")
+    jobs = [
+        (order[b * args.batch : (b + 1) * args.batch], args.seed * 1_000_003 + e * 10_007 + b)
+        for e, order in enumerate(rng.permutation(n) for _ in range(args.epochs))
+        for b in range(steps_per_epoch)
+    ]
+    batches = (_augmented_batch(images, labels, idx, seed) for idx, seed in jobs)
     t0 = time.time()
     step = 0
     progress = 0.0
-    for epoch in range(args.epochs):
-        net.train()
-        order = rng.permutation(n)
-        acc = np.zeros(5)
-        for b in range(steps_per_epoch):
-            # schedule on the larger of step and wall-clock progress: warm-up then cosine,
-            # so a slow (shared) machine still anneals inside --max-minutes
-            progress = max(step / total, (time.time() - t0) / budget)
-            if progress >= 1.0:
-                break
-            warm = min(1.0, (progress + 0.002) / 0.05)
-            for group in opt.param_groups:
-                group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
-            idx = order[b * args.batch : (b + 1) * args.batch]
-            xs, ts, ws = [], [], []
-            for i in idx:
-                img, lab = augment(images[i], labels[i], rng)
-                t, w = encode_targets(lab)
-                xs.append(img)
-                ts.append(t)
-                ws.append(w)
-            x = _to_tensor(np.stack(xs))
-            out = net(x)
-            loss, parts = loss_fn(
-                out, torch.from_numpy(np.stack(ts)), torch.from_numpy(np.stack(ws))
-            )
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            step += 1
-            acc += [float(loss)] + [float(p) for p in parts]
-            if step % 50 == 0:
-                print(
-                    f"  step {step} loss {acc[0] / (b + 1):.4f} {time.time() - t0:.0f} s",
-                    flush=True,
-                )
-        k = max(b, 1)
-        print(
-            f"epoch {epoch + 1}/{args.epochs} step {step} loss {acc[0] / k:.4f} "
-            f"(conf {acc[1] / k:.4f} shape {acc[2] / k:.4f} off {acc[3] / k:.4f} "
-            f"dir {acc[4] / k:.4f}) {time.time() - t0:.0f} s",
-            flush=True,
-        )
-        torch.save(net.state_dict(), ckpt)
+    acc = np.zeros(5)
+    for xs, ts, ws in batches:
+        # schedule on the larger of step and wall-clock progress: warm-up then cosine,
+        # so a slow (shared) machine still anneals inside --max-minutes
+        progress = max(step / total, (time.time() - t0) / budget)
         if progress >= 1.0:
             break
-    print(f"training time {time.time() - t0:.0f} s", flush=True)
+        warm = min(1.0, (progress + 0.002) / 0.05)
+        for group in opt.param_groups:
+            group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
+        net.train()
+        x = _to_tensor(xs)
+        if fast:
+            x = x.contiguous(memory_format=torch.channels_last)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
+            out = net(x)
+        loss, parts = loss_fn(out.float(), torch.from_numpy(ts), torch.from_numpy(ws))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        acc += [float(loss)] + [float(p) for p in parts]
+        if step % 50 == 0:
+            print(f"  step {step} loss {acc[0] / 50:.4f} {time.time() - t0:.0f} s", flush=True)
+            acc[:] = 0.0
+        if step % steps_per_epoch == 0:
+            print(f"epoch {step // steps_per_epoch}/{args.epochs} {time.time() - t0:.0f} s",
+                  flush=True)
+            torch.save(net.state_dict(), ckpt)
+    print(f"training time {time.time() - t0:.0f} s, {step} steps", flush=True)
+    net = net.to(memory_format=torch.contiguous_format)
+    torch.save(net.state_dict(), ckpt)
     export_onnx(net, args.out)
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB)", flush=True)
 
@@ -575,6 +592,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init", type=Path, default=None, help="start from these torch weights")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
+    p.add_argument("--fp32", action="store_true",
+                   help="float32 convolutions (default: bf16 autocast, channels last)")
     p.add_argument("--vary-paint", action="store_true",
                    help="training worlds with thinner lines and stub separators at random")
     p.add_argument("--threshold", type=float, default=None, help="point confidence (eval)")
