@@ -1,8 +1,9 @@
 """Marking points on ps2.0 top views with a DMPR-PS-style CNN (onnxruntime only).
 
-The network (``models/marking_points.onnx``, trained by ``tools/train_marking_points.py``,
-see ``models/marking_points.md``) takes the top view resized to a square ``(1, S, S, 3)``
-uint8 BGR image and returns a ``(1, 6, G, G)`` grid: per cell the confidence that a
+The networks (``models/marking_points.onnx`` and ``models/marking_points_long.onnx``, two
+runs of ``tools/train_marking_points.py``, see ``models/marking_points.md``; by default the
+detector averages their grids) take the top view resized to a square ``(1, S, S, 3)``
+uint8 BGR image and return a ``(1, 6, G, G)`` grid: per cell the confidence that a
 marking point lies in it, the probability that it is an L junction, the point's x and y
 offset inside the cell (0-1) and the cosine and sine of its direction (image coordinates,
 ``atan2(dv, du)``, from the junction into the slot along the separator).
@@ -28,6 +29,9 @@ from semslam.perception import onnx_model
 from semslam.types import JunctionShape
 
 DEFAULT_THRESHOLD = 0.7
+# the shipped models whose grids are averaged (the mean of the two is better than either on
+# the simulated and the real views: models/marking_points.md)
+DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
 """Confidence above which a grid cell is a marking point: the best F1 on simulated
 validation worlds 100-149 (neither trained on nor the benchmark's 0-99; see
 ``models/marking_points.md``)."""
@@ -117,29 +121,45 @@ def check_topview(image: object) -> np.ndarray:
 
 
 class MarkingPointDetector:
-    """The marking-point CNN on one onnxruntime thread.
+    """The marking-point CNN on one onnxruntime thread, or the mean grid of several.
 
     Args:
-        model_path: the ONNX file; default the shipped ``marking_points.onnx``.
+        model_path: an ONNX file, or several with the same input and output shapes whose
+            grids are averaged; default the shipped pair :data:`DEFAULT_MODELS`.
         threshold: minimum confidence of a point.
 
     Raises:
-        PerceptionError: the model is missing or not loadable, or its input is not
-            ``(1, S, S, 3)`` uint8.
+        PerceptionError: a model is missing or not loadable, or its input is not
+            ``(1, S, S, 3)`` uint8, or the models' input sizes differ.
     """
 
     def __init__(
-        self, model_path: str | os.PathLike[str] | None = None, threshold: float = DEFAULT_THRESHOLD
+        self,
+        model_path: str | os.PathLike[str] | list | tuple | None = None,
+        threshold: float = DEFAULT_THRESHOLD,
     ) -> None:
-        path = (
-            Path(model_path)
-            if model_path is not None
-            else onnx_model.model_path("marking_points.onnx")
-        )
-        self.path = path
+        if model_path is None:
+            paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
+        elif isinstance(model_path, (list, tuple)):
+            paths = [Path(p) for p in model_path]
+        else:
+            paths = [Path(model_path)]
+        if not paths:
+            raise PerceptionError("marking points: no model given")
+        self.paths = paths
+        self.path = paths[0]
         self.threshold = float(threshold)
-        self._session = onnx_model.load_session(path)
-        inp = self._session.get_inputs()[0]
+        self._sessions = [onnx_model.load_session(p) for p in paths]
+        sizes = {self._input_size(p, sess) for p, sess in zip(paths, self._sessions, strict=True)}
+        if len(sizes) != 1:
+            raise PerceptionError(
+                f"marking points: the models' input sizes differ {sorted(sizes)}"
+            )
+        self.input_size = sizes.pop()
+
+    @staticmethod
+    def _input_size(path: Path, session) -> int:
+        inp = session.get_inputs()[0]
         shape = list(inp.shape)
         if (
             len(shape) != 4
@@ -151,11 +171,11 @@ class MarkingPointDetector:
             raise PerceptionError(
                 f"{path}: expected input (1, S, S, 3) uint8, got {shape} {inp.type}"
             )
-        self.input_size = int(shape[1])
-        self._input_name = inp.name
+        return int(shape[1])
 
     def grid(self, topview_bgr: np.ndarray) -> tuple[np.ndarray, int, tuple[int, int]]:
-        """The raw (6, G, G) grid, the padded square side and the (top, left) padding."""
+        """The raw (6, G, G) grid (the models' mean), the padded square side and the
+        (top, left) padding."""
         import cv2
 
         img = check_topview(topview_bgr)
@@ -171,8 +191,10 @@ class MarkingPointDetector:
             interp = cv2.INTER_AREA if side > s else cv2.INTER_LINEAR
             img = cv2.resize(img, (s, s), interpolation=interp)
         x = np.ascontiguousarray(img)[None]
-        out = self._session.run(None, {self._input_name: x})[0]
-        return np.asarray(out[0]), side, (top, left)
+        grids = [
+            sess.run(None, {sess.get_inputs()[0].name: x})[0][0] for sess in self._sessions
+        ]
+        return np.mean(grids, axis=0), side, (top, left)
 
     def detect(self, topview_bgr: np.ndarray) -> list[MarkingPoint]:
         """Marking points in ``topview_bgr`` (uint8 BGR, H x W x 3), in its pixels."""

@@ -82,6 +82,26 @@ def views():
 
 def test_shipped_model_exists():
     assert model_path("marking_points.onnx").is_file()
+    assert model_path("marking_points_long.onnx").is_file()
+
+
+def test_default_grid_is_the_mean_of_the_shipped_models(detector, views):
+    """The default detector averages the two shipped models' grids, cell by cell."""
+    names = ("marking_points.onnx", "marking_points_long.onnx")
+    singles = [MarkingPointDetector(model_path(n)) for n in names]
+    image = views[0].image
+    grids = [d.grid(image)[0] for d in singles]
+    mean, side, pad = detector.grid(image)
+    assert side == 600 and pad == (0, 0)
+    assert np.allclose(mean, (grids[0] + grids[1]) / 2, atol=1e-6)
+    assert not np.allclose(grids[0], grids[1], atol=1e-3)  # two different models
+    pair = MarkingPointDetector([model_path(n) for n in names])
+    assert np.allclose(pair.grid(image)[0], mean, atol=1e-6)
+
+
+def test_no_model_list_is_refused():
+    with pytest.raises(PerceptionError, match="no model"):
+        MarkingPointDetector([])
 
 
 def test_bad_input(detector):
