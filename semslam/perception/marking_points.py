@@ -29,12 +29,13 @@ from semslam.perception import onnx_model
 from semslam.types import JunctionShape
 
 DEFAULT_THRESHOLD = 0.7
-# the shipped models whose grids are averaged (the mean of the two is better than either on
-# the simulated and the real views: models/marking_points.md)
-DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
 """Confidence above which a grid cell is a marking point: the best F1 on simulated
 validation worlds 100-149 (neither trained on nor the benchmark's 0-99; see
 ``models/marking_points.md``)."""
+
+DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
+"""The shipped models whose grids are averaged: two runs of the same recipe, whose mean is
+better than either on the simulated and the real views (``models/marking_points.md``)."""
 
 NMS_RADIUS_PX = 10.0
 """Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""
@@ -150,6 +151,7 @@ class MarkingPointDetector:
         self.path = paths[0]
         self.threshold = float(threshold)
         self._sessions = [onnx_model.load_session(p) for p in paths]
+        self._input_names = [sess.get_inputs()[0].name for sess in self._sessions]
         sizes = {self._input_size(p, sess) for p, sess in zip(paths, self._sessions, strict=True)}
         if len(sizes) != 1:
             raise PerceptionError(
@@ -192,7 +194,8 @@ class MarkingPointDetector:
             img = cv2.resize(img, (s, s), interpolation=interp)
         x = np.ascontiguousarray(img)[None]
         grids = [
-            sess.run(None, {sess.get_inputs()[0].name: x})[0][0] for sess in self._sessions
+            sess.run(None, {name: x})[0][0]
+            for sess, name in zip(self._sessions, self._input_names, strict=True)
         ]
         return np.mean(grids, axis=0), side, (top, left)
 
