@@ -35,7 +35,8 @@ validation worlds 100-149 (neither trained on nor the benchmark's 0-99; see
 
 DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
 """The shipped models whose grids are averaged: two runs of the same recipe, whose mean is
-better than either on the simulated and the real views (``models/marking_points.md``)."""
+better than either on the simulated views and in precision and F1 on the real ones (real
+recall is the second run's; ``models/marking_points.md``)."""
 
 NMS_RADIUS_PX = 10.0
 """Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import PerceptionError
-from semslam.perception.marking_points import MarkingPointDetector, decode_grid
+from semslam.perception.marking_points import DEFAULT_MODELS, MarkingPointDetector, decode_grid
 from semslam.perception.onnx_model import model_path
 from semslam.simulation.topview_samples import sample_topviews
 from semslam.types import JunctionShape
@@ -82,12 +82,13 @@ def views():
 
 def test_shipped_model_exists():
     assert model_path("marking_points.onnx").is_file()
-    assert model_path("marking_points_long.onnx").is_file()
+    assert all(model_path(name).is_file() for name in DEFAULT_MODELS)
 
 
 def test_default_grid_is_the_mean_of_the_shipped_models(detector, views):
     """The default detector averages the two shipped models' grids, cell by cell."""
-    names = ("marking_points.onnx", "marking_points_long.onnx")
+    names = DEFAULT_MODELS
+    assert len(names) == 2
     singles = [MarkingPointDetector(model_path(n)) for n in names]
     image = views[0].image
     grids = [d.grid(image)[0] for d in singles]
