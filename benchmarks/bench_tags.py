@@ -16,7 +16,10 @@
   frame observations against chi-square bounds; also the NEES on the tags seen along a
   `garage` drive;
 - ``--calibrate`` (``--calibrate-only``: and nothing else): fits the covariance constants
-  on a separate sweep (seed 11) and prints them (``model``: copy into ``TagNoiseModel``).
+  on a separate sweep (seed 11) and prints them (``model``: copy into ``TagNoiseModel``);
+  ``--calibration-codes 16`` fits them on 16 codes instead of tag 77 (codes read on all
+  four ring sides, none of the check sweeps' nor of the `garage` worlds 1-7), and with
+  ``--calibrate`` the checks then run with the model just fitted instead of the shipped one.
 """
 
 from __future__ import annotations
@@ -301,7 +304,8 @@ def sweep_nees(rows: list[dict], settings: TagSettings) -> dict:
 # --------------------------------------------------------------------------- drive frames
 
 
-def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], list, list]:
+def drive_frames(n_frames: int, seed: int, settings: TagSettings | None = None
+                 ) -> tuple[list[float], list[float], list, list]:
     """Wall and CPU time (ms) of ``estimate_tags`` on frames along a garage drive (drive 0
     of world ``seed``), and the errors and covariances of the tags observed there."""
     sim = simulate_drive("garage", seed, 0, SimulationConfig())
@@ -309,7 +313,7 @@ def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], li
     step = max(1, len(sim.frame_poses) // n_frames)
     tags = {t.tag_id: t for t in sim.world.tags}
     times, cpu_times, errors, covs = [], [], [], []
-    settings = TagSettings()
+    settings = settings or TagSettings()
     for i in range(0, len(sim.frame_poses), step):
         mTv = sim.frame_poses[i]
         gray = cv2.cvtColor(renderer.render(mTv, frame_seed(seed, 0, i)), cv2.COLOR_BGR2GRAY)
@@ -326,12 +330,13 @@ def drive_frames(n_frames: int, seed: int) -> tuple[list[float], list[float], li
     return times, cpu_times, errors, covs
 
 
-def held_out_drives(seeds: list[int], n_frames: int) -> dict:
+def held_out_drives(seeds: list[int], n_frames: int, settings: TagSettings | None = None
+                    ) -> dict:
     """NEES of the tag observations along drive 0 of other worlds, per world and pooled."""
     out: dict = {"per_world": {}}
     errors, covs = [], []
     for seed in seeds:
-        _, _, e, c = drive_frames(n_frames, seed)
+        _, _, e, c = drive_frames(n_frames, seed, settings)
         out["per_world"][seed] = nees_of(e, c)
         errors += e
         covs += c
@@ -415,6 +420,34 @@ def regression() -> dict:
 
 
 # --------------------------------------------------------------------------- calibration
+
+
+def calibration_codes(n: int) -> tuple[int, ...]:
+    """``n`` tag36h11 codes for a calibration sweep (seed 2026): read on all four sides of
+    the border ring, and none of tag 77, the other-code check sweep or the tags of the
+    `garage` worlds 1-7 (the drives the checks use)."""
+    from semslam.simulation.world import make_world
+
+    taken = {TAG_ID, *other_codes()}
+    taken |= {t.tag_id for seed in range(1, 8) for t in make_world("garage", seed).tags}
+    codes: list[int] = []
+    for code in np.random.default_rng(2026).permutation(587):
+        if int(code) in taken:
+            continue
+        world = bench_world(1.6, 0.0, int(code))
+        image = FrontRenderer(world, CAM).render(pose_seeing(world.tags[0], 4.0, 0.2, 0.0), 1)
+        found = [t for t in detect_tags(image) if t.tag_id == code]
+        if found and found[0].ring_sides == 4:
+            codes.append(int(code))
+        if len(codes) == n:
+            break
+    return tuple(codes)
+
+
+def other_codes() -> tuple[int, ...]:
+    """The 16 codes of the other-code check sweep (seed 7)."""
+    others = [i for i in range(587) if i != TAG_ID]
+    return tuple(int(v) for v in np.random.default_rng(7).choice(others, 16, replace=False))
 
 
 def _calibration_features(rows: list[dict], variant: PositionVariant) -> dict[str, np.ndarray]:
@@ -679,6 +712,8 @@ def main() -> None:
                         help="also fit the covariance constants on a sweep with seed 11")
     parser.add_argument("--calibrate-only", action="store_true",
                         help="fit the constants (seed 11 sweep), print them and stop")
+    parser.add_argument("--calibration-codes", type=int, default=0,
+                        help="calibrate on this many codes instead of tag 77 (0: tag 77)")
     parser.add_argument("--plot", type=Path, default=Path("docs/tag_detection_rate.png"))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--held-out-drives", default="2,3,4,5,6,7",
@@ -690,12 +725,17 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     result: dict = {}
+    settings = TagSettings()
     if args.calibrate or args.calibrate_only:
-        result["calibration"] = calibrate(sweep(3000, 11))
+        codes = calibration_codes(args.calibration_codes) if args.calibration_codes else None
+        result["calibration"] = calibrate(sweep(3000, 11, codes))
+        result["calibration"]["codes"] = list(codes or (TAG_ID,))
         print(json.dumps(result["calibration"], indent=2), file=sys.stderr)
         if args.calibrate_only:
             return
-    times, cpu_times, errors, covs = drive_frames(args.frames, 1)
+        if codes:  # check the model just fitted
+            settings = TagSettings(noise=TagNoiseModel(**result["calibration"]["model"]))
+    times, cpu_times, errors, covs = drive_frames(args.frames, 1, settings)
     result["nees_drive"] = nees_of(errors, covs)
     result["speed"] = {"frames": len(times), "median_ms": round(statistics.median(times), 2),
                        "p90_ms": round(float(np.percentile(times, 90)), 2),
@@ -709,15 +749,14 @@ def main() -> None:
     rows = sweep(args.samples, args.seed)
     result["accuracy"] = accuracy_table(rows)
     result["detection_rate"] = detection_rate(rows, args.plot)
-    result["nees_sweep"] = sweep_nees(rows, TagSettings())
+    result["nees_sweep"] = sweep_nees(rows, settings)
     if args.held_out_drives:
         result["nees_held_out_drives"] = held_out_drives(
-            [int(v) for v in args.held_out_drives.split(",")], args.frames)
+            [int(v) for v in args.held_out_drives.split(",")], args.frames, settings)
     if args.code_sweep:
-        others = [i for i in range(587) if i != TAG_ID]
-        codes = tuple(int(v) for v in np.random.default_rng(7).choice(others, 16, replace=False))
+        codes = other_codes()
         result["nees_sweep_16_codes"] = sweep_nees(sweep(args.code_sweep, args.seed + 1, codes),
-                                                   TagSettings())
+                                                   settings)
         result["nees_sweep_16_codes"]["codes"] = list(codes)
     report(markdown(result), result, args.json)
 
