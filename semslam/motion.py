@@ -20,7 +20,7 @@ from semslam.geometry import FloatArray, wrap_angle
 _SERIES_TURN = 1e-2
 
 
-def _arc_functions(a: float) -> tuple[float, float, float, float]:
+def arc_functions(a: float) -> tuple[float, float, float, float]:
     """``f1 = sin(a)/a``, ``f2 = (1 - cos a)/a`` and their derivatives, stable at a -> 0."""
     if abs(a) < _SERIES_TURN:
         a2 = a * a
@@ -38,7 +38,7 @@ def ctrv_displacement(yaw: float, v: float, yaw_rate: float, dt: float) -> tuple
     """Displacement ``(dx, dy)`` in the map frame of one CTRV step from heading ``yaw``:
     the arc ``v/w (sin(yaw + w dt) - sin yaw, cos yaw - cos(yaw + w dt))``, written as
     ``v dt (cos yaw f1 - sin yaw f2, sin yaw f1 + cos yaw f2)`` so it stays exact as w -> 0."""
-    f1, f2, _, _ = _arc_functions(yaw_rate * dt)
+    f1, f2, _, _ = arc_functions(yaw_rate * dt)
     c, s = math.cos(yaw), math.sin(yaw)
     return v * dt * (c * f1 - s * f2), v * dt * (s * f1 + c * f2)
 
@@ -54,7 +54,7 @@ def ctrv_jacobian(state: ArrayLike, dt: float) -> FloatArray:
     """5x5 Jacobian of :func:`ctrv_predict` with respect to the state (finite and exact
     through yaw_rate -> 0, the straight-line limit)."""
     _, _, yaw, v, w = np.asarray(state, dtype=float)
-    f1, f2, d1, d2 = _arc_functions(w * dt)
+    f1, f2, d1, d2 = arc_functions(w * dt)
     c, s = math.cos(yaw), math.sin(yaw)
     ux, uy = c * f1 - s * f2, s * f1 + c * f2  # displacement per metre of travel
     F = np.eye(5)

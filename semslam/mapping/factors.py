@@ -7,6 +7,7 @@ Jacobian here is checked numerically in tests/mapping/test_factors.py.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import gtsam
@@ -152,23 +153,25 @@ def marking_observation_residual(pose_key: int, line_key: int, anchor: FloatArra
     conditioned far from the origin). Only the distance across the line is measured: a
     detection may be a piece of the painted line, so its ends say nothing along it.
     """
-    anchor = np.asarray(anchor, dtype=float)
-    e = np.asarray(measured, dtype=float)
+    ax, ay = (float(v) for v in anchor)
+    (ex0, ey0), (ex1, ey1) = (map(float, row) for row in np.asarray(measured, dtype=float))
 
     def residual(values: gtsam.Values, want_jacobians: bool):
+        # floats, not 2-vectors: this runs for every painted line seen from every keyframe
         pose = values.atPose2(pose_key)
-        theta, d = np.asarray(values.atVector(line_key), dtype=float)
-        c, s = np.cos(pose.theta()), np.sin(pose.theta())
-        R = np.array([[c, -s], [s, c]])
-        p = np.array([pose.x(), pose.y()]) + e @ R.T  # (2, 2) end points in the map
-        n, dn = line_normal(theta)
-        r = (p - anchor) @ n - d
+        theta, d = values.atVector(line_key)
+        x, y, yaw = pose.x(), pose.y(), pose.theta()
+        c, s = math.cos(yaw), math.sin(yaw)
+        nx, ny = math.cos(theta), math.sin(theta)
+        # end points in the map, relative to the anchor
+        u0, v0 = x + c * ex0 - s * ey0 - ax, y + s * ex0 + c * ey0 - ay
+        u1, v1 = x + c * ex1 - s * ey1 - ax, y + s * ex1 + c * ey1 - ay
+        r = np.array([u0 * nx + v0 * ny - d, u1 * nx + v1 * ny - d])
         if not want_jacobians:
             return r, None
-        nR = n @ R
-        H_pose = np.column_stack([np.full(2, nR[0]), np.full(2, nR[1]),
-                                  -e[:, 1] * nR[0] + e[:, 0] * nR[1]])
-        H_line = np.column_stack([(p - anchor) @ dn, -np.ones(2)])
+        m0, m1 = nx * c + ny * s, -nx * s + ny * c  # n^T R
+        H_pose = np.array([[m0, m1, -ey0 * m0 + ex0 * m1], [m0, m1, -ey1 * m0 + ex1 * m1]])
+        H_line = np.array([[-u0 * ny + v0 * nx, -1.0], [-u1 * ny + v1 * nx, -1.0]])
         return r, {pose_key: H_pose, line_key: H_line}
 
     return residual

@@ -12,7 +12,7 @@ from semslam.mapping.factors import (
     slot_shape_residual,
 )
 from semslam.mapping.odometry import calibration_jacobian, odometry_between
-from semslam.motion import integrate_odometry
+from semslam.motion import ctrv_jacobian, ctrv_predict, integrate_odometry
 
 X, C = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.C
 
@@ -109,6 +109,34 @@ def test_odometry_between_matches_dead_reckoning_and_grows():
     _, cov_short = odometry_between(t, v, w, t[i], t[i + 50], 0.03, 0.01, 0.003)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
     assert np.trace(cov) > np.trace(cov_short)
+
+
+def _covariance_by_5x5_jacobians(t, v, w, t_start, t_end, sv0, s_scale, sw):
+    """The odometry covariance propagated with full CTRV Jacobian matrices, step by step
+    (what :func:`odometry_between` writes out in floats)."""
+    first = max(int(np.searchsorted(t, t_start, side="right")) - 1, 0)
+    state, P, now, i = np.zeros(5), np.zeros((3, 3)), t_start, first
+    while now < t_end - 1e-12 and i < len(t):
+        nxt = t[i + 1] if i + 1 < len(t) else t_end
+        dt = min(nxt, t_end) - now
+        state[3:] = v[i], w[i]
+        F5 = ctrv_jacobian(state, dt)
+        F, G = F5[:3, :3], F5[:3, 3:]
+        sv = np.hypot(sv0, s_scale * v[i])
+        P = F @ P @ F.T + G @ np.diag([sv * sv, sw * sw]) @ G.T
+        state = ctrv_predict(state, dt)
+        now, i = min(nxt, t_end), i + 1
+    return P
+
+
+@pytest.mark.parametrize("t_start, t_end", [(1.01, 7.33), (0.0, 0.5), (9.5, 10.4), (3.0, 3.0)])
+def test_odometry_covariance_is_the_ctrv_jacobian_propagation(t_start, t_end):
+    t = np.arange(0, 10.0, 0.02)
+    v = 2.0 + np.sin(t)
+    w = 0.4 * np.sin(0.7 * t)
+    _, cov = odometry_between(t, v, w, t_start, t_end, 0.03, 0.01, 0.003)
+    expected = _covariance_by_5x5_jacobians(t, v, w, t_start, t_end, 0.03, 0.01, 0.003)
+    assert np.allclose(cov, expected + np.eye(3) * 1e-10, rtol=1e-9, atol=1e-15)
 
 
 def test_calibrated_odometry_jacobians_and_zero_at_truth():
