@@ -32,28 +32,30 @@ def slot_observation_residual(pose_key: int, corner_keys: Sequence[int], measure
     """Residual of a slot seen from a keyframe: predicted minus measured vehicle-frame
     corners, (8,) = 4 corners x (x, y); ``measured`` is (4, 2) in the vehicle frame."""
     corner_keys = list(corner_keys)
-    z = np.asarray(measured, dtype=float)
+    z = np.asarray(measured, dtype=float).reshape(8)
 
     def residual(values: gtsam.Values, want_jacobians: bool):
         pose = values.atPose2(pose_key)
-        c, s = np.cos(pose.theta()), np.sin(pose.theta())
-        Rt = np.array([[c, s], [-s, c]])
-        points = np.array([values.atPoint2(key) for key in corner_keys])  # (4, 2)
-        q = (points - np.array([pose.x(), pose.y()])) @ Rt.T  # vehicle-frame corners
-        r = (q - z).reshape(8)
+        x, y, yaw = pose.x(), pose.y(), pose.theta()
+        c, s = math.cos(yaw), math.sin(yaw)
+        d = np.array([values.atPoint2(key) for key in corner_keys]) - (x, y)  # (4, 2)
+        q = np.empty(8)  # vehicle-frame corners (x0, y0, x1, ...)
+        q[0::2] = c * d[:, 0] + s * d[:, 1]
+        q[1::2] = c * d[:, 1] - s * d[:, 0]
+        r = q - z
         if not want_jacobians:
             return r, None
         H_pose = np.zeros((8, 3))
         H_pose[0::2, 0] = -1.0
         H_pose[1::2, 1] = -1.0
-        H_pose[0::2, 2] = q[:, 1]
-        H_pose[1::2, 2] = -q[:, 0]
-        H_corners: dict[int, FloatArray] = {}
+        H_pose[0::2, 2] = q[1::2]
+        H_pose[1::2, 2] = -q[0::2]
+        H = {pose_key: H_pose}
         for k, key in enumerate(corner_keys):
             block = np.zeros((8, 2))
-            block[2 * k : 2 * k + 2] = Rt
-            H_corners[key] = block
-        return r, {pose_key: H_pose, **H_corners}
+            block[2 * k : 2 * k + 2] = ((c, s), (-s, c))
+            H[key] = block
+        return r, H
 
     return residual
 
