@@ -1,0 +1,79 @@
+"""Mapping time of two versions of semslam on the same drives, one after the other.
+
+    git worktree add /tmp/baseline REV
+    PYTHONPATH=. python benchmarks/compare_mapping_speed.py --baseline /tmp/baseline \
+        [--presets garage] [--seeds 1 2 3 4 5] [--work /tmp/speed]
+
+Per drive (`semslam simulate --no-images`, made once with the current version), `semslam
+map` with the baseline's source tree and then with this one, alternating, so both meet the
+same machine load; prints mapping time (the map's own ``mapping_s``: frames in to map out,
+no file I/O), driving time, speed-up against driving and the map's score for both. The
+maps should agree to the digits shown when the change is only about speed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from _common import report
+
+HERE = Path(__file__).resolve().parents[1]
+
+
+def semslam(root: Path, args: list[str]) -> str:
+    """``python -m semslam ARGS`` with the package imported from the source tree ``root``."""
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
+                          text=True, env=env, cwd=root, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"semslam {' '.join(args)} ({root}) failed: {proc.stderr.strip()}")
+    return proc.stdout
+
+
+def measure(root: Path, drive: Path, out: Path) -> dict:
+    semslam(root, ["map", str(drive), "-o", str(out), "--no-progress"])
+    score = json.loads(semslam(root, ["evaluate", "map", str(out), "--truth",
+                                      str(drive / "world.json"), "--json"]))
+    stats = json.loads(out.read_text())["metadata"]["statistics"]
+    return {"mapping_s": stats["mapping_s"], "driving_s": stats["driving_s"],
+            "speedup": round(stats["driving_s"] / stats["mapping_s"], 1),
+            "corner_rmse_m": round(score["corner_rmse_m"], 4),
+            "slots_matched": score["slots_matched"], "duplicates": score["duplicate_slots"],
+            "wrong_merges": score["wrong_merges"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", type=Path, required=True, help="source tree to compare")
+    parser.add_argument("--presets", nargs="+", default=["garage"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    parser.add_argument("--work", type=Path, default=Path("/tmp/semslam-speed"))
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for preset in args.presets:
+        for seed in args.seeds:
+            drive = args.work / f"{preset}-{seed}"
+            if not (drive / "drive.json").exists():
+                semslam(HERE, ["simulate", str(drive), "--preset", preset, "--seed", str(seed),
+                               "--no-images"])
+            for name, root in (("baseline", args.baseline.resolve()), ("this", HERE)):
+                row = measure(root, drive, args.work / f"{preset}-{seed}-{name}.json")
+                rows.append({"preset": preset, "seed": seed, "version": name, **row})
+                print(rows[-1], file=sys.stderr, flush=True)
+    lines = ["| preset | seed | version | mapping s | driving s | faster than driving | "
+             "corner RMSE m | matched | duplicates | wrong merges |", "|" + " --- |" * 10]
+    lines += [f"| {r['preset']} | {r['seed']} | {r['version']} | {r['mapping_s']} | "
+              f"{r['driving_s']} | {r['speedup']}x | {r['corner_rmse_m']} | "
+              f"{r['slots_matched']} | {r['duplicates']} | {r['wrong_merges']} |" for r in rows]
+    report("\n".join(lines), {"rows": rows}, args.json)
+
+
+if __name__ == "__main__":
+    main()
