@@ -26,7 +26,9 @@ HERE = Path(__file__).resolve().parents[1]
 
 
 def semslam(root: Path, args: list[str]) -> str:
-    """``python -m semslam ARGS`` with the package imported from the source tree ``root``."""
+    """``python -m semslam ARGS`` with the package imported from the source tree ``root``:
+    run in ``root`` (``-m`` puts the working folder first on the path, ahead of
+    ``PYTHONPATH``, so from this repository the baseline would import this tree)."""
     env = {**os.environ, "PYTHONPATH": str(root)}
     proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
                           text=True, env=env, cwd=root, check=False)

@@ -66,21 +66,19 @@ def calibration_jacobian(
 
 def _segment(
     t: FloatArray, speed: FloatArray, yaw_rate: FloatArray, t_start: float, t_end: float
-) -> tuple[list[float], list[float], list[float], bool]:
-    """The samples that hold during ``[t_start, t_end]`` (the one in force at ``t_start``
-    to the first at or after ``t_end``) as lists, and whether they run to the last sample
-    (after which the last one holds until ``t_end``)."""
+) -> tuple[list[float], list[float], list[float]]:
+    """The samples that hold during ``[t_start, t_end]`` as lists: the one in force at
+    ``t_start`` to the first at or after ``t_end`` (or the drive's last, which then holds
+    until ``t_end``)."""
     first = max(int(np.searchsorted(t, t_start, side="right")) - 1, 0)
     stop = int(np.searchsorted(t, t_end, side="left")) + 1
-    return (t[first:stop].tolist(), speed[first:stop].tolist(), yaw_rate[first:stop].tolist(),
-            stop >= len(t))
+    return t[first:stop].tolist(), speed[first:stop].tolist(), yaw_rate[first:stop].tolist()
 
 
 def _integrate(
     t: list[float],
     speed: list[float],
     yaw_rate: list[float],
-    to_the_end: bool,
     t_start: float,
     t_end: float,
     scale: float,
@@ -98,7 +96,7 @@ def _integrate(
     n = len(t)
     i = 0
     while now < t_end - 1e-12 and i < n:
-        nxt = t[i + 1] if i + 1 < n else (t_end if to_the_end else t[i])
+        nxt = t[i + 1] if i + 1 < n else t_end  # the last sample holds to the end
         dt = min(nxt, t_end) - now
         if dt > 0:
             v, w = speed[i] * scale, yaw_rate[i] - bias
