@@ -66,7 +66,9 @@ class LocalMap:
         self.corners = np.array([s.corners for s in self.slots]).reshape(-1, 4, 2)
         self.corner_cov = np.array([s.corner_covariances for s in self.slots]).reshape(-1, 4, 2, 2)
         self.heading_var = np.array([s.orientation_variance for s in self.slots], dtype=float)
-        self._slot_tree = cKDTree(self.corners.mean(axis=1)) if len(self.slots) else None
+        self.centres = self.corners.mean(axis=1)  # (S, 2)
+        self.labels = np.array([s.label for s in self.slots], dtype=object)  # None: no label
+        self._slot_tree = cKDTree(self.centres) if len(self.slots) else None
         self.by_label: dict[str, list[int]] = {}
         for i, s in enumerate(self.slots):
             if s.label is not None:
@@ -133,6 +135,16 @@ class LocalMap:
             return
         c, s = math.cos(pose[2]), math.sin(pose[2])
         Rt = np.array([[c, s], [-s, c]])  # map -> vehicle rotation
+        centres = (V.mean(axis=1) @ Rt) + pose[:2]  # observed centres in the map
+        near = np.linalg.norm(
+            self.centres[J][None] - centres[:, None], axis=-1
+        ) < self.cfg.search_radius  # (O, L)
+        labels = self.labels[J]
+        read = np.array([o.label for o in frame.slots], dtype=object)
+        same_label = (labels[None, :] == read[:, None]) & (read != None)[:, None]  # noqa: E711
+        # only slots near an observation or of a label read can be chosen: keep those
+        can = (near | same_label).any(axis=0)
+        J, near, same_label, labels = J[can], near[:, can], same_label[:, can], labels[can]
         d = self.corners[J] - pose[:2]  # (L, 4, 2)
         predicted = (d @ Rt.T).reshape(len(J), 8)
         H = np.zeros((len(J), 8, 3))
@@ -146,13 +158,6 @@ class LocalMap:
             Rmap[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
         sigma = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min)
                           for o in frame.slots])
-        centres = (V.mean(axis=1) @ Rt) + pose[:2]  # observed centres in the map
-        near = np.linalg.norm(
-            self.corners[J].mean(axis=1)[None] - centres[:, None], axis=-1
-        ) < self.cfg.search_radius  # (O, L)
-        labels = np.array([self.slots[j].label for j in J], dtype=object)
-        read = np.array([o.label for o in frame.slots], dtype=object)
-        same_label = (labels[None, :] == read[:, None]) & (read != None)[:, None]  # noqa: E711
         # Mahalanobis distances only for the pairs that can be chosen (near, or same label)
         po, pl = np.nonzero(near | same_label)
         d2 = np.full((len(V), len(J)), np.inf)
