@@ -197,11 +197,14 @@ class LocalMap:
             accepted.append((o, chosen))
         if not accepted:
             return
-        R = np.zeros((8 * len(accepted), 8 * len(accepted)))
-        for i, (o, j) in enumerate(accepted):  # all the frame's slots: one measurement
-            R[8 * i : 8 * i + 8, 8 * i : 8 * i + 8] = Rmap[j] + np.eye(8) * sigma[o] ** 2
         obs_idx = [o for o, _ in accepted]
-        map_idx = [int(J[j]) for _, j in accepted]
+        local_idx = [j for _, j in accepted]
+        map_idx = J[local_idx].tolist()
+        n = len(accepted)  # all the frame's slots: one measurement, block-diagonal R
+        blocks = Rmap[local_idx] + (sigma[obs_idx] ** 2)[:, None, None] * np.eye(8)
+        R = np.zeros((n, 8, n, 8))
+        R[np.arange(n), :, np.arange(n), :] = blocks
+        R = R.reshape(8 * n, 8 * n)
         m = PointMeasurement(V[obs_idx].ravel(), R, self.corners[map_idx].reshape(-1, 2))
         out.slots.extend(map_idx)
         self._accept(out, "slot", m, observations=len(accepted))

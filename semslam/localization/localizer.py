@@ -208,16 +208,14 @@ class Localizer:
         if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
         if slots:
-            floor = self.local_map.corner_cov[slots].mean(axis=(0, 1))
-            heading_floor = float(self.local_map.heading_var[slots].mean())
+            idx = np.asarray(slots)
+            floor = self.local_map.corner_cov[idx].mean(axis=(0, 1))
+            heading_floor = float(self.local_map.heading_var[idx].mean())
         else:  # markings only: maps keep no covariance for them, the configured one
             floor = np.eye(2) * self.cfg.marking_map_sigma**2
             heading_floor = 0.0
-        floor = self.cfg.map_floor_scale * floor
         P = self.filter.P
-        gap = floor - P[:2, :2]
-        w, V = np.linalg.eigh(0.5 * (gap + gap.T))
-        P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
+        P[:2, :2] += positive_part_2x2(self.cfg.map_floor_scale * floor - P[:2, :2])
         P[2, 2] = max(P[2, 2], self.cfg.map_floor_scale * heading_floor)
 
     def _frame_gate(self, dof: int) -> float:
@@ -279,3 +277,17 @@ class Localizer:
         else:
             pose, cov = self.filter.pose, self.filter.pose_covariance
         return FrameEstimate(float(self.t), pose, cov, status, associated, rejected, update_ms)
+
+
+def positive_part_2x2(A: FloatArray) -> FloatArray:
+    """The positive semi-definite part of a symmetric 2x2 matrix (its negative eigenvalue,
+    if any, set to 0), in closed form."""
+    a, b, c = float(A[0, 0]), 0.5 * float(A[0, 1] + A[1, 0]), float(A[1, 1])
+    mean, radius = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
+    high, low = mean + radius, mean - radius
+    if low >= 0.0:
+        return np.array([[a, b], [b, c]])
+    if high <= 0.0:
+        return np.zeros((2, 2))
+    # high * v v^T, with v v^T = (A - low I) / (high - low)
+    return high / (high - low) * np.array([[a - low, b], [b, c - low]])

@@ -10,7 +10,7 @@ import pytest
 
 from semslam.config import LocalizationConfig, SimulationConfig
 from semslam.errors import DriveError
-from semslam.localization.localizer import Localizer
+from semslam.localization.localizer import Localizer, positive_part_2x2
 from semslam.simulation.scenario import simulate_drive
 from semslam.types import FrameObservations, TagObservation
 
@@ -150,3 +150,14 @@ def test_the_heading_is_never_surer_than_the_slots_it_was_measured_against(sim):
             assert np.mean(yaw_sigma >= heading_sigma * (1 - 1e-9)) > 0.8
         else:  # the true map is exact: the heading is known far better
             assert np.median(yaw_sigma) < heading_sigma / 3
+
+
+def test_positive_part_2x2_matches_the_eigendecomposition():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        B = rng.normal(size=(2, 2))
+        A = B + B.T
+        w, V = np.linalg.eigh(A)
+        expected = (V * np.maximum(w, 0.0)) @ V.T
+        np.testing.assert_allclose(positive_part_2x2(A), expected, atol=1e-12)
+    np.testing.assert_array_equal(positive_part_2x2(-np.eye(2)), np.zeros((2, 2)))
