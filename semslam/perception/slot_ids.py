@@ -174,21 +174,21 @@ def ctc_label_probability(probs: np.ndarray, label: str, alphabet: str = ALPHABE
     states = [0]  # blank, c1, blank, c2, ..., blank
     for ch in label:
         states += [alphabet.index(ch) + 1, 0]
-    states_arr = np.array(states)
     # a state may be entered from itself, the one before, or (a character different from
     # the one two back) skip the blank between them
-    skip = np.zeros(len(states), bool)
-    skip[2:] = (states_arr[2:] != 0) & (states_arr[2:] != states_arr[:-2])
-    alpha = np.zeros(len(states))
-    alpha[0] = p[0, states[0]]
-    if len(states) > 1:
-        alpha[1] = p[0, states[1]]
-    for t in range(1, len(p)):
-        entered = alpha.copy()
-        entered[1:] += alpha[:-1]
-        entered[2:] += np.where(skip[2:], alpha[:-2], 0.0)
-        alpha = entered * p[t, states_arr]
-    total = alpha[-1] + (alpha[-2] if len(states) > 1 else 0.0)
+    n = len(states)
+    skips = [k for k in range(2, n) if states[k] != 0 and states[k] != states[k - 2]]
+    rows = p[:, states].tolist()  # (T, n) in Python floats: a few states, T small
+    alpha = [0.0] * n
+    alpha[0] = rows[0][0]
+    if n > 1:
+        alpha[1] = rows[0][1]
+    for row in rows[1:]:
+        entered = [alpha[0]] + [alpha[k] + alpha[k - 1] for k in range(1, n)]
+        for k in skips:
+            entered[k] += alpha[k - 2]
+        alpha = [e * q for e, q in zip(entered, row, strict=True)]
+    total = alpha[-1] + (alpha[-2] if n > 1 else 0.0)
     return float(np.clip(total, 0.0, 1.0))
 
 

@@ -13,6 +13,7 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from semslam.errors import PerceptionError
@@ -108,8 +109,9 @@ class TopviewPerception:
         t1 = time.perf_counter()
         ids: tuple[SlotIdReading, ...] = ()
         if slots:
+            grey = cv2.cvtColor(topview, cv2.COLOR_BGR2GRAY)  # once, not per slot
             patches = [
-                crop_id_patch(topview, s.uv_corners[:2], into_slot_direction(s)) for s in slots
+                crop_id_patch(grey, s.uv_corners[:2], into_slot_direction(s)) for s in slots
             ]
             ids = tuple(self.id_reader.read_patches(patches))
         t2 = time.perf_counter()
