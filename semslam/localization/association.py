@@ -164,32 +164,36 @@ class LocalMap:
         if len(po):
             Hp = H[pl]
             S = Hp @ P @ Hp.transpose(0, 2, 1) + Rmap[pl]
-            S += (sigma[po] ** 2)[:, None, None] * np.eye(8)
+            diagonal = np.arange(8)
+            S[:, diagonal, diagonal] += (sigma[po] ** 2)[:, None]
             r = V[po].reshape(-1, 8) - predicted[pl]
             d2[po, pl] = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
-        used = np.zeros(len(J), dtype=bool)
+        # the choices, one observation at a time, in Python: a frame has a few of each
+        rows, near_rows, label_list = d2.tolist(), near.tolist(), labels.tolist()
+        used = [False] * len(J)
+        gate, ratio = self._slot_gate, self.cfg.second_nearest_ratio
         accepted: list[tuple[int, int]] = []  # (observation, local slot)
         for o, obs in enumerate(frame.slots):
             chosen = None
+            row = rows[o]
             if (
                 obs.label is not None
                 and obs.label_confidence >= self.cfg.id_confidence_high
                 and obs.label in self.by_label
             ):
-                mine = np.flatnonzero((labels == obs.label) & ~used)
-                if len(mine) and d2[o, mine].min() <= self._slot_gate:
-                    chosen = int(mine[np.argmin(d2[o, mine])])
+                mine = [j for j, lab in enumerate(label_list) if lab == obs.label and not used[j]]
+                if mine:
+                    j = min(mine, key=row.__getitem__)
+                    chosen = j if row[j] <= gate else None
                 # else: a misread (or a lost filter): the geometry decides below
             if chosen is None:
-                cand = np.flatnonzero(near[o] & ~used)
-                if len(cand):
-                    order = cand[np.argsort(d2[o, cand])]
-                    best = d2[o, order[0]]
-                    second = d2[o, order[1]] if len(order) > 1 else np.inf
-                    if best <= self._slot_gate and second >= self.cfg.second_nearest_ratio * max(
-                        best, 8
-                    ):
-                        chosen = int(order[0])
+                cand = [j for j, ok in enumerate(near_rows[o]) if ok and not used[j]]
+                if cand:
+                    order = sorted(cand, key=row.__getitem__)
+                    best = row[order[0]]
+                    second = row[order[1]] if len(order) > 1 else math.inf
+                    if best <= gate and second >= ratio * max(best, 8):
+                        chosen = order[0]
             if chosen is None:
                 out.rejected["slot"] += 1
                 continue
