@@ -27,6 +27,7 @@ a whole frame whose Mahalanobis distance is too large (Houben).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,10 +59,20 @@ class Innovation:
     S: FloatArray
     C: FloatArray
 
+    @functools.cached_property
+    def _solved(self) -> FloatArray:
+        """``S^-1 [C^T | nu]`` (m, n + 1): the gain's transpose and ``S^-1 nu``, one solve."""
+        return np.linalg.solve(self.S, np.column_stack([self.C.T, self.nu]))
+
     @property
     def nis(self) -> float:
         """Normalised innovation squared (chi-square with m degrees of freedom)."""
-        return float(self.nu @ np.linalg.solve(self.S, self.nu))
+        return float(self.nu @ self._solved[:, -1])
+
+    @property
+    def gain(self) -> FloatArray:
+        """Kalman gain ``K = C S^-1`` (n, m)."""
+        return self._solved[:, :-1].T
 
 
 class CtrvFilter:
@@ -133,9 +144,10 @@ class CtrvFilter:
         """Innovation of the stacked ``measurements`` (covariance ``R``) at the current state."""
         if mode == "ekf":
             pose = self.x[:3]
-            nu = np.concatenate([m.residual(m.predict(pose)[0]) for m in measurements])
+            parts = [m.linearise(pose) for m in measurements]
+            nu = np.concatenate([r for r, _ in parts])
             H = np.zeros((len(nu), len(self.x)))
-            H[:, :3] = np.vstack([m.jacobian(pose) for m in measurements])
+            H[:, :3] = np.vstack([J for _, J in parts])
             C = self.P @ H.T
             S = H @ C + R
             return Innovation(nu, 0.5 * (S + S.T), C)
@@ -154,7 +166,7 @@ class CtrvFilter:
 
     def apply(self, innovation: Innovation) -> None:
         """Commit a prepared update."""
-        K = np.linalg.solve(innovation.S, innovation.C.T).T
+        K = innovation.gain
         self.x = self.x + K @ innovation.nu
         self.x[2] = wrap_angle(self.x[2])
         self.P = self.P - K @ innovation.S @ K.T

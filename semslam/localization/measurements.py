@@ -62,6 +62,10 @@ class Measurement:
             r[..., i] = wrap_angle(r[..., i])
         return r
 
+    def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The residual (m,) and the Jacobian (m, 3) at one ``pose`` (the EKF update)."""
+        return self.residual(self.predict(pose)[0]), self.jacobian(pose)
+
 
 @dataclass(frozen=True)
 class PointMeasurement(Measurement):
@@ -76,6 +80,17 @@ class PointMeasurement(Measurement):
 
     def jacobian(self, pose: FloatArray) -> FloatArray:
         return point_jacobian(pose, self.mP)
+
+    def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        d = self.mP - pose[:2]
+        predicted = d @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
+        H = np.empty((2 * len(d), 3))
+        H[0::2, 0], H[0::2, 1] = -c, -s
+        H[1::2, 0], H[1::2, 1] = s, -c
+        H[0::2, 2] = -s * d[:, 0] + c * d[:, 1]
+        H[1::2, 2] = -c * d[:, 0] - s * d[:, 1]
+        return self.z - predicted.ravel(), H
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,14 @@ def test_point_measurement_predicts_vehicle_frame_points_and_its_jacobian_is_rig
     np.testing.assert_allclose(m.jacobian(POSE), numerical_jacobian(m, POSE), atol=1e-7)
 
 
+def test_point_measurement_linearises_as_its_residual_and_jacobian():
+    mP = np.array([[5.0, 1.0], [4.0, -3.0], [-1.0, 7.5]])
+    m = PointMeasurement(np.arange(6.0), np.eye(6), mP)
+    r, H = m.linearise(POSE)
+    np.testing.assert_allclose(r, m.residual(m.predict(POSE)[0]), atol=1e-12)
+    np.testing.assert_allclose(H, m.jacobian(POSE), atol=1e-12)
+
+
 def test_tag_measurement_is_the_relative_pose_and_its_jacobian_is_right():
     mTt = np.array([8.0, 2.0, -2.9])
     m = TagMeasurement(np.zeros(3), np.eye(3), mTt)
