@@ -161,10 +161,10 @@ class LocalMap:
         # Mahalanobis distances only for the pairs that can be chosen (near, or same label)
         po, pl = np.nonzero(near | same_label)
         d2 = np.full((len(V), len(J)), np.inf)
+        diagonal = np.arange(8)
         if len(po):
             Hp = H[pl]
             S = Hp @ P @ Hp.transpose(0, 2, 1) + Rmap[pl]
-            diagonal = np.arange(8)
             S[:, diagonal, diagonal] += (sigma[po] ** 2)[:, None]
             r = V[po].reshape(-1, 8) - predicted[pl]
             d2[po, pl] = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
@@ -205,7 +205,8 @@ class LocalMap:
         local_idx = [j for _, j in accepted]
         map_idx = J[local_idx].tolist()
         n = len(accepted)  # all the frame's slots: one measurement, block-diagonal R
-        blocks = Rmap[local_idx] + (sigma[obs_idx] ** 2)[:, None, None] * np.eye(8)
+        blocks = Rmap[local_idx]
+        blocks[:, diagonal, diagonal] += (sigma[obs_idx] ** 2)[:, None]
         R = np.zeros((n, 8, n, 8))
         R[np.arange(n), :, np.arange(n), :] = blocks
         R = R.reshape(8 * n, 8 * n)
