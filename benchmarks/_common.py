@@ -19,6 +19,19 @@ def run_semslam(args: list[str], env: dict[str, str] | None = None) -> str:
     return proc.stdout
 
 
+def run_python_in(root: Path, args: list[str]) -> str:
+    """``python ARGS`` with semslam imported from the source tree ``root`` (another version,
+    e.g. a git worktree); its stdout, or exit with its error. Run in ``root``: ``-m`` and
+    ``-c`` put the working folder first on the path, ahead of ``PYTHONPATH``, so from this
+    repository the other tree would import this one."""
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env,
+                          cwd=root, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"python {' '.join(args[:3])} ({root}) failed: {proc.stderr.strip()}")
+    return proc.stdout
+
+
 def true_slot(found, truths, radius: float = 1.0):
     """The slot of ``truths`` (the exact observations of the same frame) that the detected
     slot ``found`` is: the one with the smallest mean corner distance, if under ``radius``

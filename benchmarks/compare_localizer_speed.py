@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
-from _common import report
+from _common import report, run_python_in
 
 HERE = Path(__file__).resolve().parents[1]
 
@@ -37,26 +35,16 @@ print(json.dumps({"update_ms_median": summary.update_ms_median}))
 """
 
 
-def run(root: Path, args: list[str]) -> str:
-    """``python ARGS`` with semslam imported from the source tree ``root`` (run in ``root``:
-    ``-m`` and ``-c`` put the working folder first on the path, ahead of ``PYTHONPATH``)."""
-    env = {**os.environ, "PYTHONPATH": str(root)}
-    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env,
-                          cwd=root, check=False)
-    if proc.returncode != 0:
-        raise SystemExit(f"python {' '.join(args[:3])} ({root}) failed: {proc.stderr.strip()}")
-    return proc.stdout
-
-
 def prepare(work: Path, seed: int) -> tuple[Path, Path]:
     """Drive 1 of `garage` ``seed`` and the map of its drive 0 (made once, this version)."""
     d0, d1, map_path = (work / f"garage-{seed}-{n}" for n in ("d0", "d1", "map.json"))
     for drive, n in ((d0, 0), (d1, 1)):
         if not (drive / "drive.json").exists():
-            run(HERE, ["-m", "semslam", "simulate", str(drive), "--preset", "garage",
-                       "--seed", str(seed), "--drive", str(n), "--no-images", "--no-progress"])
+            run_python_in(HERE, ["-m", "semslam", "simulate", str(drive), "--preset", "garage",
+                                 "--seed", str(seed), "--drive", str(n), "--no-images",
+                                 "--no-progress"])
     if not map_path.exists():
-        run(HERE, ["-m", "semslam", "map", str(d0), "-o", str(map_path), "--no-progress"])
+        run_python_in(HERE, ["-m", "semslam", "map", str(d0), "-o", str(map_path), "--no-progress"])
     return d1, map_path
 
 
@@ -76,7 +64,8 @@ def main() -> None:
         for _ in range(args.repeats):
             for name, root in (("baseline", args.baseline.resolve()), ("this", HERE)):
                 out = args.work / f"garage-{seed}-{name}.tum"
-                got = json.loads(run(root, ["-c", _LOCALIZE, str(drive), str(map_path), str(out)]))
+                command = ["-c", _LOCALIZE, str(drive), str(map_path), str(out)]
+                got = json.loads(run_python_in(root, command))
                 times[name].append(round(got["update_ms_median"], 3))
                 print(seed, name, times[name][-1], file=sys.stderr, flush=True)
         same = ((args.work / f"garage-{seed}-baseline.tum").read_text()

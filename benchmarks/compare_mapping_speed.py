@@ -15,26 +15,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
-from _common import report
+from _common import report, run_python_in
 
 HERE = Path(__file__).resolve().parents[1]
 
 
 def semslam(root: Path, args: list[str]) -> str:
-    """``python -m semslam ARGS`` with the package imported from the source tree ``root``:
-    run in ``root`` (``-m`` puts the working folder first on the path, ahead of
-    ``PYTHONPATH``, so from this repository the baseline would import this tree)."""
-    env = {**os.environ, "PYTHONPATH": str(root)}
-    proc = subprocess.run([sys.executable, "-m", "semslam", *args], capture_output=True,
-                          text=True, env=env, cwd=root, check=False)
-    if proc.returncode != 0:
-        raise SystemExit(f"semslam {' '.join(args)} ({root}) failed: {proc.stderr.strip()}")
-    return proc.stdout
+    """``python -m semslam ARGS`` with the package imported from the source tree ``root``."""
+    return run_python_in(root, ["-m", "semslam", *args])
 
 
 def measure(root: Path, drive: Path, out: Path) -> dict:
