@@ -188,28 +188,38 @@ class LineLandmarks:
     # ------------------------------------------------------------------ association
     def candidates(self, mE: FloatArray) -> list[tuple[int, float]]:
         """Lines a detection with map end points ``mE`` (2, 2) may belong to, with the mean
-        distance of its end points from each, nearest first."""
-        seg = mE[1] - mE[0]
-        length = float(np.linalg.norm(seg))
+        distance of its end points from each, nearest first.
+
+        A candidate is live, parallel to the detection within the angle tolerance, has both
+        end points within the distance gate across it, and overlaps its extent (plus the
+        gap) along it. In Python floats: a detection has a few lines filed near it."""
+        (ax, ay), (bx, by) = np.asarray(mE, dtype=float).tolist()
+        length = math.hypot(bx - ax, by - ay)
         if length < 1e-9:
             return []
         filed = self._filed_near(mE.min(axis=0), mE.max(axis=0))
         if filed.size == 0:
             return []
-        rows = self._rows[filed]
-        n = np.column_stack([np.cos(rows[:, 0]), np.sin(rows[:, 0])])
-        u = np.column_stack([-n[:, 1], n[:, 0]])
-        parallel = np.abs(n @ (seg / length)) < self.sin_tolerance
-        across = np.abs(((mE[:, None, :] - rows[None, :, 2:4]) * n).sum(-1) - rows[:, 1])
-        foot = rows[:, 2:4] + rows[:, 1:2] * n
-        s = ((mE[:, None, :] - foot[None]) * u).sum(-1)  # (2, L) along each line
-        lo, hi = rows[:, 4] - self.gap, rows[:, 5] + self.gap
-        overlap = (s.max(axis=0) >= lo) & (s.min(axis=0) <= hi)
-        ok = self._live[filed] & parallel & (across.max(axis=0) < self.distance_gate) & overlap
-        hits = np.flatnonzero(ok)
-        cost = across.mean(axis=0)[hits]
-        order = np.argsort(cost, kind="stable")
-        return [(int(filed[hits[i]]), float(cost[i])) for i in order]
+        ex, ey = (bx - ax) / length, (by - ay) / length  # the detection's direction
+        found = []
+        for i, live, (theta, d, px, py, s_lo, s_hi) in zip(
+            filed.tolist(), self._live[filed].tolist(), self._rows[filed].tolist(), strict=True
+        ):
+            nx, ny = math.cos(theta), math.sin(theta)  # the line's normal; (-ny, nx) along
+            across_a = abs((ax - px) * nx + (ay - py) * ny - d)
+            across_b = abs((bx - px) * nx + (by - py) * ny - d)
+            fx, fy = px + d * nx, py + d * ny  # foot of the normal from the anchor
+            along_a = (ax - fx) * -ny + (ay - fy) * nx
+            along_b = (bx - fx) * -ny + (by - fy) * nx
+            if (
+                live
+                and abs(nx * ex + ny * ey) < self.sin_tolerance
+                and max(across_a, across_b) < self.distance_gate
+                and max(along_a, along_b) >= s_lo - self.gap
+                and min(along_a, along_b) <= s_hi + self.gap
+            ):
+                found.append((i, (across_a + across_b) / 2))
+        return sorted(found, key=lambda hit: hit[1])
 
     def start(self, mE: FloatArray, keyframe: int) -> LineLandmark:
         """A tentative line through one detection."""

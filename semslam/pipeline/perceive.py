@@ -11,12 +11,12 @@ Frames are processed in chunks by ``workers`` processes (each loads the models o
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from semslam.config import SemslamConfig
 from semslam.errors import DriveError, FormatError, PerceptionError
+from semslam.pipeline.workers import process_pool
 from semslam.progress import progress_bar
 from semslam.types import FrameObservations
 
@@ -105,7 +105,7 @@ def perceive_drive(
                 out.extend(_perceive_frames(chunk))
                 bar.update(len(chunk))
             return out
-        with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=init_args) as pool:
+        with process_pool(workers, _init_worker, init_args) as pool:
             for part in pool.map(_perceive_frames, chunks):
                 out.extend(part)
                 bar.update(len(part))

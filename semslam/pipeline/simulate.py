@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import shutil
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import SimulationError
 from semslam.pipeline.drive_output import commit_drive_folder, prepare_drive_folder
+from semslam.pipeline.workers import process_pool
 from semslam.progress import progress_bar
 
 
@@ -102,9 +102,7 @@ def _render_images(tmp: Path, sim, config: SemslamConfig, show_progress: bool | 
             for n in map(_render_frames, jobs):
                 bar.update(n)
             return
-        with ProcessPoolExecutor(
-            render.workers, initializer=_init_render_worker, initargs=init_args
-        ) as pool:
+        with process_pool(render.workers, _init_render_worker, init_args) as pool:
             for n in pool.map(_render_frames, jobs):
                 bar.update(n)
 
