@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import SimulationError
-from semslam.perception.apriltag_detector import shared_detector
+from semslam.perception.tag_detection import DetectorSettings, configured_detector
 from semslam.rig import default_front_camera
 from semslam.simulation.render_front import FrontRenderer, render_front
 from semslam.simulation.world import make_world
@@ -33,9 +33,11 @@ def renderer(small_world: World) -> FrontRenderer:
     return FrontRenderer(small_world, CAMERA)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def detector():
-    return shared_detector("tag36h11")  # never a second Detector: see apriltag_detector.py
+    """The process-wide detector with semslam's settings, set for each test: the C
+    library's settings belong to the one detector, and other tests change them."""
+    return configured_detector("tag36h11", DetectorSettings())
 
 
 def pose_facing(tag: Tag, distance: float) -> np.ndarray:
