@@ -83,14 +83,8 @@ class PointMeasurement(Measurement):
 
     def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        d = self.mP - pose[:2]
-        predicted = d @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
-        H = np.empty((2 * len(d), 3))
-        H[0::2, 0], H[0::2, 1] = -c, -s
-        H[1::2, 0], H[1::2, 1] = s, -c
-        H[0::2, 2] = -s * d[:, 0] + c * d[:, 1]
-        H[1::2, 2] = -c * d[:, 0] - s * d[:, 1]
-        return self.z - predicted.ravel(), H
+        predicted = (self.mP - pose[:2]) @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
+        return self.z - predicted.ravel(), point_jacobian(pose, self.mP)
 
 
 @dataclass(frozen=True)

@@ -192,7 +192,7 @@ class LineLandmarks:
 
         A candidate is live, parallel to the detection within the angle tolerance, has both
         end points within the distance gate across it, and overlaps its extent (plus the
-        gap) along it. In Python floats: a detection has a few lines filed near it."""
+        gap) along it. In Python floats: a few dozen lines are filed near a detection."""
         (ax, ay), (bx, by) = np.asarray(mE, dtype=float).tolist()
         length = math.hypot(bx - ax, by - ay)
         if length < 1e-9:

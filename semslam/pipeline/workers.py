@@ -15,8 +15,9 @@ def process_pool(
 
     Forking the calling process is unsafe once it runs threads (onnxruntime's, OpenCV's, a
     test runner's): a child can inherit a lock that another thread held and wait on it
-    forever. The fork server is a clean single-threaded process that imports the module
-    of ``initializer`` once; each worker is forked from it, then runs ``initializer``.
+    forever. The fork server is a clean single-threaded process, started by the first
+    pool, that imports that pool's ``initializer`` module once (later pools' workers
+    import theirs); each worker is forked from it, then runs ``initializer``.
     """
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([initializer.__module__])
