@@ -82,10 +82,23 @@ SPACE = (
 )
 
 
+# SPACE's pixel quantities are at the top views' full size; views shrunk f times
+# (``MarkingParams.shrink_factor``) search lengths / f and gradients (per pixel) * f
+_LENGTHS_PX = {"blur_sigma_px", "link_radius_px", "link_offset_px", "min_segment_px",
+               "max_residual_px", "trim_px"}
+
+
+def space(p: MarkingParams) -> tuple[tuple[str, float, float], ...]:
+    """SPACE with its pixel ranges at the working resolution of ``p`` on the top views."""
+    f = float(p.shrink_factor(SPEC.metres_per_px))
+    scale = {n: 1.0 / f for n in _LENGTHS_PX} | {"grad_min": f}
+    return tuple((n, lo * scale.get(n, 1.0), hi * scale.get(n, 1.0)) for n, lo, hi in SPACE)
+
+
 def to_params(x: np.ndarray, base: MarkingParams) -> MarkingParams:
     values = {
         name: lo + float(np.clip(v, 0.0, 1.0)) * (hi - lo)
-        for (name, lo, hi), v in zip(SPACE, x, strict=True)
+        for (name, lo, hi), v in zip(space(base), x, strict=True)
     }
     values["clahe_tiles"] = int(round(values["clahe_tiles"]))
     return dataclasses.replace(base, **values, min_confidence=0.0)
@@ -93,7 +106,11 @@ def to_params(x: np.ndarray, base: MarkingParams) -> MarkingParams:
 
 def to_unit(p: MarkingParams) -> np.ndarray:
     return np.array(
-        [np.clip((getattr(p, n) - lo) / (hi - lo), 0.0, 1.0) for n, lo, hi in SPACE], float
+        [
+            np.clip((getattr(p, n) - lo) / (hi - lo), 0.0, 1.0)
+            for n, lo, hi in space(p)
+        ],
+        float,
     )
 
 

@@ -12,6 +12,7 @@ import pytest
 from semslam.errors import SemslamError
 from semslam.geometry import inverse_transform_points
 from semslam.perception.markings import (
+    FULL_SIZE,
     TUNED,
     MarkingDetector,
     MarkingInputError,
@@ -78,11 +79,13 @@ def test_single_bar_width_and_angle(angle_deg):
     c, u = np.array([0.0, 3.2]), np.array([math.cos(t), math.sin(t)])
     a, b = c - 1.2 * u, c + 1.2 * u
     paint(img, a, b, 0.18)
-    obs = MarkingDetector().detect(img, SPEC)
-    assert len(obs) == 1
-    assert angle_between(obs[0].vB - obs[0].vA, u) <= 1.0
-    assert abs(obs[0].width - 0.18) <= 0.02
-    assert end_error(obs[0], a, b) <= 0.04
+    # the default works at 30 px per metre (3.3 cm pixels): widths to 2.5 cm, not 2
+    for params, width_tol in ((TUNED, 0.025), (FULL_SIZE, 0.02)):
+        obs = MarkingDetector(params).detect(img, SPEC)
+        assert len(obs) == 1
+        assert angle_between(obs[0].vB - obs[0].vA, u) <= 1.0
+        assert abs(obs[0].width - 0.18) <= width_tol
+        assert end_error(obs[0], a, b) <= 0.04
 
 
 def test_yellow_line_on_green_floor():
@@ -142,6 +145,31 @@ def test_bad_masks_and_priors_are_refused():
 
 def test_params_round_trip():
     assert MarkingParams.from_dict(TUNED.to_dict()) == TUNED
+    assert MarkingParams.from_dict(FULL_SIZE.to_dict()) == FULL_SIZE
+    with pytest.raises(ValueError, match="work_px_per_m"):
+        MarkingParams(work_px_per_m=0.0)
+    assert TUNED.shrink_factor(SPEC.metres_per_px) == 2  # 60 px per metre -> 30
+    assert FULL_SIZE.shrink_factor(SPEC.metres_per_px) == 1
+    assert TUNED.shrink_factor(0.03) == 1 and TUNED.shrink_factor(0.01) == 3
+
+
+def test_shrunk_view_gives_lines_in_the_views_pixels():
+    """The default settings work on the view shrunk twice; the lines come back in the
+    view's own pixels and agree with the full-size settings' lines."""
+    img = floor(6)
+    a, b = np.array([4.0, -2.0]), np.array([1.5, 2.5])
+    paint(img, a, b, 0.15)
+    small = MarkingDetector(TUNED).detect_lines(img, SPEC)
+    full = MarkingDetector(FULL_SIZE).detect_lines(img, SPEC)
+    assert len(small.a) == len(full.a) == 1
+    assert small.metres_per_px == full.metres_per_px == SPEC.metres_per_px
+    assert small.centre_px == full.centre_px
+    ends = sorted(np.vstack([small.a, small.b]).tolist())
+    ends_full = sorted(np.vstack([full.a, full.b]).tolist())
+    assert np.abs(np.subtract(ends, ends_full)).max() <= 2.0  # px of the view
+    assert abs(small.width_px[0] - full.width_px[0]) <= 1.5
+    (obs,) = small.observations()
+    assert end_error(obs, a, b) <= 0.04
 
 
 def test_presegmentation_keeps_only_lines_near_the_prior():
@@ -214,3 +242,28 @@ def test_rendered_top_view():
 
     correct = sum(on_truth(o) for o in obs)
     assert correct >= 0.8 * len(obs)
+
+
+def test_line_ends_run_on_through_points_no_segment_took():
+    """Stage 6b on hand-made points: the end follows free points on its axis until the
+    first gap wider than link_radius_px; off-axis or crossing points do not move it."""
+    from semslam.perception.markings.segments import _extend_ends
+
+    p = FULL_SIZE  # link_radius_px 4.28, trim_px 2.24
+    cen, dirs = np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]])
+    tlo, thi = np.array([-10.0]), np.array([10.0])
+    free = np.array(
+        [
+            [12.0, 0.3], [15.0, -0.2], [18.5, 0.0],  # a chain past the far end
+            [30.0, 0.0],  # beyond a gap of 11.5 px: not taken
+            [-12.0, 3.0],  # off the axis
+            [-13.0, 0.0],  # on the axis, but crossing (orientation 90 deg)
+        ]
+    )
+    angle = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 90.0])
+    st = {"c2": np.cos(np.radians(2 * angle)), "s2": np.sin(np.radians(2 * angle))}
+    lo, hi = _extend_ends(free, st, cen, dirs, tlo, thi, p)
+    assert hi[0] == pytest.approx(18.5) and lo[0] == pytest.approx(-10.0)
+    lo, hi = _extend_ends(np.zeros((0, 2)), {"c2": np.zeros(0), "s2": np.zeros(0)},
+                          cen, dirs, tlo, thi, p)
+    assert (lo[0], hi[0]) == (-10.0, 10.0)

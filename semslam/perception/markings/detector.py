@@ -94,9 +94,7 @@ def _run(
     invp = padded(invalid.astype(np.uint8), cv2.BORDER_CONSTANT).astype(bool)
     aux: dict = {"raw": padded(gray), "median": median}
     if bgr is not None:
-        b, g, r = (c.astype(np.float32) for c in cv2.split(padded(bgr)))
-        aux["chroma"] = b - 0.5 * (g + r)
-        aux["rg"] = cv2.absdiff(r, g)
+        aux["bgr"] = padded(bgr)
     img, gx, gy, xs, ys, dx, dy, m0, off0 = edge_pixels(padded(eq), invp, p)
     pts, st = symmetry_centres(img, gx, gy, aux, invp, (xs, ys, dx, dy, m0, off0), p, mpp)
     centre = (centre_px[0] + pad, centre_px[1] + pad)
@@ -168,7 +166,28 @@ class MarkingDetector:
             ] = True
         if prior_segments is not None:
             invalid |= ~_prior_roi(prior_segments, spec, gray.shape, p.preseg_margin_m)
-        return _run(gray, bgr, invalid, p, s, (c, c))
+        f = p.shrink_factor(s)
+        if f == 1:
+            return _run(gray, bgr, invalid, p, s, (c, c))
+        # stages 2-7 on the view shrunk f times (pixel means; a working pixel is invalid
+        # when any of its pixels is), then the lines back in the view's pixels
+        size = (max(16, n // f), max(16, n // f))
+        fx = size[0] / n
+        small = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+        small_bgr = None if bgr is None else cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+        small_invalid = (
+            cv2.resize(invalid.astype(np.uint8) * 255, size, interpolation=cv2.INTER_AREA) > 0
+        )
+        cw = (c + 0.5) * fx - 0.5
+        lines = _run(small, small_bgr, small_invalid, p, s / fx, (cw, cw))
+        return replace(
+            lines,
+            a=(lines.a + 0.5) / fx - 0.5,
+            b=(lines.b + 0.5) / fx - 0.5,
+            width_px=lines.width_px / fx,
+            metres_per_px=s,
+            centre_px=(c, c),
+        )
 
     def detect_mask(
         self,

@@ -66,7 +66,7 @@ def symmetry_centres(img, gx, gy, aux: dict, invalid, edges, p: MarkingParams, m
     Returns (M, 2) centre points (px) and a dict of (M,) arrays: S, L, V, G, C (contrast),
     A (asymmetry), H (chroma), R (red-green), D (floor deviation), F (floor level),
     c2, s2 (doubled line angle), n (pairs). ``aux``: the raw marking channel ``raw``, its
-    median over the view ``median``, and (BGR input) the ``chroma`` and ``rg`` images.
+    median over the view ``median``, and (BGR input) the padded colour image ``bgr``.
     """
     xs, ys, dx, dy, m0, off0 = edges
     kmin, kmax = walk_range(p, mpp)
@@ -134,12 +134,11 @@ def symmetry_centres(img, gx, gy, aux: dict, invalid, edges, p: MarkingParams, m
         a[gate] for a in (rows, kk, o0, width, L, V, contrast, asym, floor, G, k_idx, far, fr, dev)
     )
     r = np.arange(len(rows))
-    if aux.get("chroma") is None:
+    if aux.get("bgr") is None:
         hue = rg = np.zeros(len(rows))
-    else:
-        centre = fr[r, (j0 + k_idx) // 2]
-        hue = aux["chroma"].ravel()[centre]
-        rg = aux["rg"].ravel()[centre]
+    else:  # colour at the walk's middle pixel
+        b, g, r_ = aux["bgr"].reshape(-1, 3)[fr[r, (j0 + k_idx) // 2]].astype(np.float32).T
+        hue, rg = b - 0.5 * (g + r_), np.abs(r_ - g)
     gxs, gys = gxs[rows], gys[rows]
     ddx, ddy = dx[rows], dy[rows]
     t = 0.5 * (o0 + kk)

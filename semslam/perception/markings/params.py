@@ -5,6 +5,7 @@ confidence regression weighs (:data:`FEATURES`)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -38,13 +39,18 @@ class MarkingInputError(SemslamError, ValueError):
 
 @dataclass(frozen=True)
 class MarkingParams:
-    """Every tunable of the detector (pixel quantities at the working resolution).
+    """Every tunable of the detector (pixel quantities at the working resolution,
+    :meth:`shrink_factor`). The class defaults are the full-size tuning
+    (:data:`FULL_SIZE`); the shipped defaults are :data:`TUNED`.
 
     ``weights`` are the logistic regression's: bias first, then one per entry of
     :data:`FEATURES` (features divided by ``FEATURE_SCALES``).
     """
 
     preseg_margin_m: float = 0.5  # not tuned: around the map's markings
+    # not tuned: stages 2-7 run at this many pixels per metre at most (a finer view is
+    # shrunk by the whole factor that keeps it at least this fine; the top views have 60)
+    work_px_per_m: float = 60.0
     clahe_clip: float = 1.8732  # CLAHE clip limit (0: no equalisation)
     clahe_tiles: int = 3
     blur_sigma_px: float = 1.9995
@@ -77,11 +83,20 @@ class MarkingParams:
     min_confidence: float = 0.76  # operating point: precision >= 0.96 within 5 m (validation)
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.work_px_per_m, (int, float)) and self.work_px_per_m > 0):
+            raise MarkingInputError(
+                f"MarkingParams.work_px_per_m: expected a number > 0, got {self.work_px_per_m!r}"
+            )
         if len(self.weights) != len(FEATURES) + 1:
             raise MarkingInputError(
                 f"MarkingParams.weights: expected {len(FEATURES) + 1} numbers, "
                 f"got {len(self.weights)}"
             )
+
+    def shrink_factor(self, metres_per_px: float) -> int:
+        """How many times a view of ``metres_per_px`` is shrunk before stages 2-7: the
+        largest whole factor that leaves at least ``work_px_per_m`` pixels per metre."""
+        return max(1, int(math.floor(1.0 / (metres_per_px * self.work_px_per_m) + 1e-6)))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values."""
@@ -104,12 +119,49 @@ class MarkingParams:
         return cls(**v)
 
 
-TUNED = MarkingParams()  # the defaults: tools/tune_markings.py, CMA-ES (see BENCHMARKS.md)
-# the mask path (hand-set, not tuned): no equalisation, a fixed edge threshold for 0/255
-# masks; on a clean mask L, V, G and colour are constant, so the confidence weighs only
-# length, fill, straightness and distance
+# the full-size tuning (tools/tune_markings.py, CMA-ES, 2026-11-22): about 2.5 times the
+# time of TUNED for a little more recall (BENCHMARKS.md, "Painted-line detector")
+FULL_SIZE = MarkingParams()
+# the defaults: at 30 px per metre (the top views shrunk twice, 300 x 300), tuned there by
+# tools/tune_markings.py (CMA-ES, started from FULL_SIZE with its pixel lengths halved)
+TUNED = MarkingParams(
+    work_px_per_m=30.0,
+    clahe_clip=1.6023,
+    clahe_tiles=3,
+    blur_sigma_px=0.9653,
+    grad_min=11.958,
+    pair_ratio=0.7486,
+    pair_angle_deg=39.0117,
+    min_width_m=0.0579,
+    max_width_m=0.3111,
+    min_contrast=14.3776,
+    max_asymmetry=142.7073,
+    max_floor_dev=122.8642,
+    link_radius_px=2.1696,
+    link_angle_deg=24.9765,
+    link_offset_px=0.3585,
+    link_width_ratio=0.1695,
+    link_intensity=38.5692,
+    min_segment_px=2.6291,
+    max_residual_px=0.7088,
+    trim_px=0.7342,
+    cluster_angle_deg=5.5223,
+    cluster_offset_m=0.0777,
+    cluster_gap_m=0.9938,
+    cluster_width_m=0.0538,
+    cluster_intensity=146.9475,
+    min_length_m=0.2694,
+    # fmt: off
+    weights=(-3.781, -0.1031, -0.2842, 0.372, -0.4747, 0.5071, 1.7042, -0.5568, -0.5191,
+             -1.3132, -1.0422, 1.1905, 0.4246, 1.4176),
+    # fmt: on
+    min_confidence=0.82,
+)
+# the mask path (hand-set, not tuned; full size): no equalisation, a fixed edge threshold
+# for 0/255 masks; on a clean mask L, V, G and colour are constant, so the confidence
+# weighs only length, fill, straightness and distance
 MASK_PARAMS = replace(
-    TUNED,
+    FULL_SIZE,
     clahe_clip=0.0,
     blur_sigma_px=1.0,
     grad_min=40.0,
@@ -125,6 +177,7 @@ MASK_WORK_MPP = 1.0 / 60.0  # masks are resampled to the top views' resolution
 __all__ = [
     "FEATURES",
     "FEATURE_SCALES",
+    "FULL_SIZE",
     "MASK_PARAMS",
     "MASK_WORK_MPP",
     "TUNED",

@@ -188,22 +188,68 @@ def _bilinear(img: np.ndarray, invalid: np.ndarray, P: np.ndarray):
     return v, ok & ~invalid[y0, x0]
 
 
-_END_STEPS = np.arange(-4.0, 10.25, 0.5)  # px along the line from a fitted end, outward
+def _extend_ends(free, st_free, cen, dirs, tlo, thi, p: MarkingParams):
+    """Stage 6b: each line end runs on through centre points that no segment took (the
+    short, ragged pieces where the paint ends, too short to be segments of their own):
+    points on the line's axis (within ``trim_px``), of its orientation (within
+    ``link_angle_deg``), following the end and each other with gaps of at most
+    ``link_radius_px``. ``free``: (F, 2) those points; ``st_free``: their statistics."""
+    k = len(cen)
+    if len(free) == 0 or k == 0:
+        return tlo, thi
+    sign = np.concatenate([np.ones(k), -np.ones(k)])  # outward along the line: hi, then lo
+    line = np.concatenate([np.arange(k), np.arange(k)])
+    start = np.concatenate([thi, tlo])
+    reach = 4.0 * p.link_radius_px + p.trim_px
+    near = cKDTree(free).query_ball_point(cen[line] + dirs[line] * start[:, None], reach)
+    end = np.repeat(np.arange(2 * k), [len(n) for n in near])
+    if len(end) == 0:
+        return tlo, thi
+    pt = np.concatenate(near).astype(np.intp)
+    li, u = line[end], dirs[line[end]]
+    d = free[pt] - cen[li]
+    along = sign[end] * (np.einsum("ij,ij->i", d, u) - start[end])  # > 0: past the end
+    across = np.abs(d[:, 0] * u[:, 1] - d[:, 1] * u[:, 0])
+    c2, s2 = u[:, 0] ** 2 - u[:, 1] ** 2, 2.0 * u[:, 0] * u[:, 1]
+    same_o = st_free["c2"][pt] * c2 + st_free["s2"][pt] * s2 >= math.cos(
+        2.0 * math.radians(p.link_angle_deg)
+    )
+    ok = (along > 0.0) & (across <= p.trim_px) & same_o
+    end, along = end[ok], along[ok]
+    if len(end) == 0:
+        return tlo, thi
+    order = np.lexsort((along, end))
+    end, along = end[order], along[order]
+    first = np.r_[True, end[1:] != end[:-1]]
+    gap = np.where(first, along, np.diff(along, prepend=0.0))
+    broken = np.cumsum(gap > p.link_radius_px)
+    broken -= np.maximum.accumulate(np.where(first, broken - (gap > p.link_radius_px), 0))
+    kept = broken == 0  # no gap too wide since this end
+    reach_out = np.zeros(2 * k)
+    np.maximum.at(reach_out, end[kept], along[kept])
+    return tlo - reach_out[k:], thi + reach_out[:k]
 
 
-def _refine_ends(img, invalid, cen, dirs, tlo, thi, floor_level):
+# steps along the line from a fitted end, outward, in pixels of 1/60 m (the top views')
+_END_STEPS = np.arange(-4.0, 10.25, 0.5)
+_END_STEP_MPP = 1.0 / 60.0
+
+
+def _refine_ends(img, invalid, cen, dirs, tlo, thi, floor_level, mpp):
     """Move each end to where the intensity along the centre line falls half way from
     the paint to the floor (the gradient stage stops a blur radius short of the end).
-    Ends that meet no such drop within 10 px, or run into invalid pixels, stay."""
-    s = _END_STEPS
+    Ends that meet no such drop within 0.17 m (10 px of a top view), or run into invalid
+    pixels, stay. ``mpp``: metres per pixel of ``img``."""
+    scale = _END_STEP_MPP / mpp
+    s = _END_STEPS * scale
     out = []
     for sign, t in ((-1.0, tlo), (1.0, thi)):
         e = cen + dirs * t[:, None]
         P = e[:, None, :] + (sign * s)[None, :, None] * dirs[:, None, :]
         v, ok = _bilinear(img, invalid, P)
-        inside = v[:, s <= -1.0].mean(axis=1)
+        inside = v[:, s <= -1.0 * scale].mean(axis=1)
         thr = 0.5 * (inside + floor_level)
-        below = (v < thr[:, None]) & (s >= -2.0)[None, :]
+        below = (v < thr[:, None]) & (s >= -2.0 * scale)[None, :]
         k = below.argmax(axis=1)
         r = np.arange(len(t))
         usable = below.any(axis=1) & (k > 0) & (np.cumsum(~ok, axis=1)[r, k] == 0)
@@ -236,12 +282,16 @@ def lines_from_centres(
     inl, cnt, cen, dirs, lam = _trimmed_fit(li, n_lines, q, p.trim_px)
     t = np.einsum("ij,ij->i", ends - cen[end_line], dirs[end_line])
     tlo, thi = _extent(end_line, n_lines, t)
+    free = ~sel
+    tlo, thi = _extend_ends(
+        pts[free], {"c2": st["c2"][free], "s2": st["s2"][free]}, cen, dirs, tlo, thi, p
+    )
     w_in = inl.astype(float)
 
     def mean(v: np.ndarray) -> np.ndarray:
         return np.bincount(li, weights=w_in * v[sel], minlength=n_lines) / np.maximum(cnt, 1)
 
-    tlo, thi = _refine_ends(img, invalid, cen, dirs, tlo, thi, mean(st["F"]))
+    tlo, thi = _refine_ends(img, invalid, cen, dirs, tlo, thi, mean(st["F"]), mpp)
     a, b = cen + dirs * tlo[:, None], cen + dirs * thi[:, None]
     length_px = thi - tlo
 
