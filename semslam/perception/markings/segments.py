@@ -282,10 +282,11 @@ def lines_from_centres(
     inl, cnt, cen, dirs, lam = _trimmed_fit(li, n_lines, q, p.trim_px)
     t = np.einsum("ij,ij->i", ends - cen[end_line], dirs[end_line])
     tlo, thi = _extent(end_line, n_lines, t)
-    free = ~sel
-    tlo, thi = _extend_ends(
-        pts[free], {"c2": st["c2"][free], "s2": st["s2"][free]}, cen, dirs, tlo, thi, p
-    )
+    if p.extend_ends:
+        free = ~sel
+        tlo, thi = _extend_ends(
+            pts[free], {"c2": st["c2"][free], "s2": st["s2"][free]}, cen, dirs, tlo, thi, p
+        )
     w_in = inl.astype(float)
 
     def mean(v: np.ndarray) -> np.ndarray:
