@@ -153,10 +153,10 @@ TUNED = MarkingParams(
     cluster_intensity=146.9475,
     min_length_m=0.2694,
     # fmt: off
-    weights=(-3.781, -0.1031, -0.2842, 0.372, -0.4747, 0.5071, 1.7042, -0.5568, -0.5191,
-             -1.3132, -1.0422, 1.1905, 0.4246, 1.4176),
+    weights=(-3.8884, -0.1158, -0.3083, 0.4306, -0.4425, 0.5008, 1.6716, -0.525,
+             -0.5121, -1.2904, -1.0155, 1.1809, 0.5661, 1.4266),
     # fmt: on
-    min_confidence=0.82,
+    min_confidence=0.83,
 )
 # the mask path (hand-set, not tuned; full size): no equalisation, a fixed edge threshold
 # for 0/255 masks; on a clean mask L, V, G and colour are constant, so the confidence
