@@ -15,7 +15,9 @@ plus the recall within 5 m at the lowest threshold that reaches ``--precision`` 
 At the end the regression is fitted on the tuning views and the confidence threshold is
 set to the lowest one whose precision for lines within 5 m reaches ``--precision`` on
 separate validation views (seeds 3000..); the result is written as JSON: paste ``params``
-into ``TUNED`` in ``semslam/perception/markings/params.py``.
+into ``TUNED`` in ``semslam/perception/markings/params.py``. The search runs at the start
+parameters' working resolution (``work_px_per_m``, not searched; the shipped TUNED: 30 px
+per metre): the pixel ranges of ``SPACE``, written for the top views' 60, are scaled to it.
 """
 
 from __future__ import annotations
