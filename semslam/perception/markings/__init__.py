@@ -35,7 +35,7 @@ By default stages 2-7 run at 30 px per metre (``work_px_per_m``): the 600 x 600 
 view shrunk twice, in about 40 % of the time; :data:`FULL_SIZE` runs them on the top
 view itself (60 px per metre). Lines are returned in the view's pixels either way.
 Semantic masks of the line class (:meth:`MarkingDetector.detect_mask`) are resampled to
-the top views' resolution and run through stages 3-7 with :data:`MASK_PARAMS`.
+:data:`MASK_PARAMS`' ``work_px_per_m`` (the top views' 60) and run through stages 3-7.
 
 The pieces: :mod:`~semslam.perception.markings.params` (settings, tuned defaults,
 features), :mod:`~semslam.perception.markings.edges` (stages 3-4),
@@ -49,7 +49,6 @@ from semslam.perception.markings.params import (
     FEATURES,
     FULL_SIZE,
     MASK_PARAMS,
-    MASK_WORK_MPP,
     TUNED,
     MarkingInputError,
     MarkingParams,
@@ -61,7 +60,6 @@ __all__ = [
     "FEATURE_SCALES",
     "FULL_SIZE",
     "MASK_PARAMS",
-    "MASK_WORK_MPP",
     "MarkingLines",
     "TUNED",
     "MarkingDetector",

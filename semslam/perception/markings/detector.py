@@ -15,7 +15,6 @@ from numpy.typing import ArrayLike, NDArray
 from semslam.perception.markings.edges import edge_pixels, symmetry_centres, walk_range
 from semslam.perception.markings.params import (
     MASK_PARAMS,
-    MASK_WORK_MPP,
     TUNED,
     MarkingInputError,
     MarkingParams,
@@ -197,9 +196,9 @@ class MarkingDetector:
     ) -> tuple[MarkingObservation, ...]:
         """Line markings in a bird's-eye binary mask of one class (non-zero = paint).
 
-        The mask is resampled to the top views' resolution (``MASK_WORK_MPP``) and runs
-        through the same stages with :data:`MASK_PARAMS` (no equalisation; on a clean
-        mask the symmetry stage only measures widths).
+        The mask is resampled to the mask settings' ``work_px_per_m`` (:data:`MASK_PARAMS`:
+        the top views' 60 px per metre) and runs through the same stages with them (no
+        equalisation; on a clean mask the symmetry stage only measures widths).
 
         Args:
             mask: (H, W) bool or integer mask, rows down, x forward = up.
@@ -228,14 +227,15 @@ class MarkingDetector:
             raise MarkingInputError(f"metres_per_pixel: expected > 0, got {metres_per_pixel}")
         if min(mask.shape) < 16:
             raise MarkingInputError(f"mask: {mask.shape[1]} x {mask.shape[0]} px is too small")
-        f = mpp / MASK_WORK_MPP
+        work_mpp = 1.0 / self.mask_params.work_px_per_m
+        f = mpp / work_mpp
         m8 = (mask != 0).astype(np.uint8) * 255
         size = (max(16, int(round(mask.shape[1] * f))), max(16, int(round(mask.shape[0] * f))))
         work = cv2.resize(m8, size, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
         fx, fy = size[0] / mask.shape[1], size[1] / mask.shape[0]
         centre = ((centre_px[0] + 0.5) * fx - 0.5, (centre_px[1] + 0.5) * fy - 0.5)
         invalid = np.zeros(work.shape, bool)
-        return _run(work, None, invalid, self.mask_params, MASK_WORK_MPP, centre)
+        return _run(work, None, invalid, self.mask_params, work_mpp, centre)
 
 
 __all__ = ["MarkingDetector", "marking_channel"]

@@ -175,7 +175,6 @@ MASK_PARAMS = replace(
     weights=(-3.0, 0.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 3.0, -0.3),
     min_confidence=0.5,
 )
-MASK_WORK_MPP = 1.0 / 60.0  # masks are resampled to the top views' resolution
 
 
 __all__ = [
@@ -183,7 +182,6 @@ __all__ = [
     "FEATURE_SCALES",
     "FULL_SIZE",
     "MASK_PARAMS",
-    "MASK_WORK_MPP",
     "TUNED",
     "MarkingInputError",
     "MarkingParams",

@@ -193,7 +193,8 @@ def _extend_ends(free, st_free, cen, dirs, tlo, thi, p: MarkingParams):
     short, ragged pieces where the paint ends, too short to be segments of their own):
     points on the line's axis (within ``trim_px``), of its orientation (within
     ``link_angle_deg``), following the end and each other with gaps of at most
-    ``link_radius_px``. ``free``: (F, 2) those points; ``st_free``: their statistics."""
+    ``link_radius_px``, up to ``4 * link_radius_px + trim_px`` past the end. ``free``:
+    (F, 2) those points; ``st_free``: their statistics."""
     k = len(cen)
     if len(free) == 0 or k == 0:
         return tlo, thi
