@@ -18,6 +18,8 @@ FloatArray = NDArray[np.float64]
 
 def wrap_angle(angle: ArrayLike) -> FloatArray | float:
     """Wrap angles (radians) to (-pi, pi]; scalars stay scalars."""
+    if isinstance(angle, float):  # the filter's hot path: the same arithmetic, no array
+        return math.pi - (math.pi - float(angle)) % (2.0 * math.pi)
     a = np.asarray(angle, dtype=float)
     wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     if wrapped.ndim == 0:

@@ -39,6 +39,10 @@ from semslam.localization.measurements import (
 from semslam.types import FrameObservations, SemanticMap
 
 _MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-tree
+_MINUS_IDENTITY_8x2 = -np.tile(np.eye(2), (4, 1))  # d(mV - mP)/d(x, y) for four corners
+_QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])  # (d_x, d_y) @ it = (d_y, -d_x)
+_DIAGONAL = np.arange(8)
+_LOCAL_MAP_MARGIN = 4.0  # m: the local map of slots reaches this far beyond a frame's reach
 
 
 @dataclass
@@ -67,12 +71,23 @@ class LocalMap:
         self.corner_cov = np.array([s.corner_covariances for s in self.slots]).reshape(-1, 4, 2, 2)
         self.heading_var = np.array([s.orientation_variance for s in self.slots], dtype=float)
         self.centres = self.corners.mean(axis=1)  # (S, 2)
-        self.labels = np.array([s.label for s in self.slots], dtype=object)  # None: no label
+        self._corner_cov_scaled = cfg.map_covariance_scale * self.corner_cov  # as the gate uses it
+        self._corner_blocks = np.zeros((len(self.slots), 8, 8))  # the same, (S, 8, 8) blocks
+        for k in range(4):
+            self._corner_blocks[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = (
+                self._corner_cov_scaled[:, k]
+            )
+        mean_cov = self.corner_cov.mean(axis=1)  # (S, 2, 2) over the four corners
+        self.floor_terms = [  # per slot: mean corner covariance xx, xy, yy; heading variance
+            (float(c[0, 0]), float(c[0, 1]), float(c[1, 1]), float(h))
+            for c, h in zip(mean_cov, self.heading_var, strict=True)
+        ]
+        self._label_codes = {label: i for i, label in enumerate(sorted(
+            {s.label for s in self.slots if s.label is not None}))}  # a label read: its code
+        self._slot_codes = np.array([self._label_codes.get(s.label, -1) for s in self.slots],
+                                    dtype=int)  # -1: a slot with no label (codes read: >= -2)
         self._slot_tree = cKDTree(self.centres) if len(self.slots) else None
-        self.by_label: dict[str, list[int]] = {}
-        for i, s in enumerate(self.slots):
-            if s.label is not None:
-                self.by_label.setdefault(s.label, []).append(i)
+        self._local_slots: tuple = (0.0, 0.0, -1.0)  # x, y, r (< 0: none), then _slots_near's
         self.tags = {(t.family, t.tag_id): t for t in semantic_map.tags}
         self.markings = semantic_map.markings
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
@@ -124,95 +139,106 @@ class LocalMap:
     def _slots(self, frame, pose, P, out: Associations) -> None:
         """All (observation, nearby map slot) distances at once, then per observation: the
         slot of its confident label if that passes the gate, else the nearest slot by
-        Mahalanobis distance if it passes the gate and the second-nearest test."""
+        Mahalanobis distance if it passes the gate and the second-nearest test.
+
+        The distances are worked out in the map frame: turning every corner's residual and
+        Jacobian rows by the predicted heading is an orthogonal change of frame, which
+        leaves ``r^T S^-1 r`` as it is, and there the map's corner covariances need no
+        turning (they are indexed once, as (S, 8, 8) blocks)."""
         if self._slot_tree is None or not frame.slots:
             return
         V = np.array([o.vCorners for o in frame.slots], dtype=float)  # (O, 4, 2)
         reach = self.cfg.search_radius + float(np.abs(V).max()) + 3.0
-        J = np.array(self._slot_tree.query_ball_point(pose[:2], reach), dtype=int)
+        J, centres, codes = self._slots_near(pose, reach)
         if not len(J):
             out.rejected["slot"] += len(V)
             return
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        Rt = np.array([[c, s], [-s, c]])  # map -> vehicle rotation
-        centres = (V.mean(axis=1) @ Rt) + pose[:2]  # observed centres in the map
-        near = np.linalg.norm(
-            self.centres[J][None] - centres[:, None], axis=-1
-        ) < self.cfg.search_radius  # (O, L)
-        labels = self.labels[J]
-        read = np.array([o.label for o in frame.slots], dtype=object)
-        same_label = (labels[None, :] == read[:, None]) & (read != None)[:, None]  # noqa: E711
-        # only slots near an observation or of a label read can be chosen: keep those
-        can = (near | same_label).any(axis=0)
-        J, near, same_label, labels = J[can], near[:, can], same_label[:, can], labels[can]
-        d = self.corners[J] - pose[:2]  # (L, 4, 2)
-        predicted = (d @ Rt.T).reshape(len(J), 8)
-        H = np.zeros((len(J), 8, 3))
-        H[:, 0::2, 0], H[:, 0::2, 1] = -c, -s
-        H[:, 1::2, 0], H[:, 1::2, 1] = s, -c
-        H[:, 0::2, 2] = -s * d[..., 0] + c * d[..., 1]
-        H[:, 1::2, 2] = -c * d[..., 0] - s * d[..., 1]
-        Rmap = np.zeros((len(J), 8, 8))
-        blocks = self.cfg.map_covariance_scale * (Rt @ self.corner_cov[J] @ Rt.T)  # (L,4,2,2)
-        for k in range(4):  # the map's corner uncertainty, seen in the vehicle frame
-            Rmap[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[:, k]
-        sigma = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min)
-                          for o in frame.slots])
+        mV = V @ np.array([[c, s], [-s, c]]) + pose[:2]  # observed corners in the map
+        gap = centres[None] - np.vstack([mV.sum(axis=1) * 0.25, pose[:2]])[:, None]
+        dist2 = np.einsum("olk,olk->ol", gap, gap)  # (O + 1, L): observed centres, the car
+        near = dist2[:-1] < self.cfg.search_radius**2  # (O, L)
+        read = np.array([self._label_codes.get(o.label, -2) for o in frame.slots])
+        same_label = (codes[None] == read[:, None]) & (dist2[-1] <= reach**2)
         # Mahalanobis distances only for the pairs that can be chosen (near, or same label)
         po, pl = np.nonzero(near | same_label)
-        d2 = np.full((len(V), len(J)), np.inf)
-        diagonal = np.arange(8)
-        if len(po):
-            Hp = H[pl]
-            S = Hp @ P @ Hp.transpose(0, 2, 1) + Rmap[pl]
-            S[:, diagonal, diagonal] += (sigma[po] ** 2)[:, None]
-            r = V[po].reshape(-1, 8) - predicted[pl]
-            d2[po, pl] = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
+        if not len(po):
+            out.rejected["slot"] += len(V)
+            return
+        sigma2 = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min) ** 2
+                           for o in frame.slots])
+        slot = J[pl]
+        d = self.corners[slot] - pose[:2]  # (p, 4, 2) map corners from the car, map frame
+        H = np.empty((len(po), 8, 3))  # of the map-frame residual mV - mP
+        H[:, :, :2] = _MINUS_IDENTITY_8x2
+        H[:, :, 2] = (d @ _QUARTER_TURN).reshape(-1, 8)  # (d_y, -d_x) per corner
+        S = H @ P @ H.transpose(0, 2, 1) + self._corner_blocks[slot]
+        S[:, _DIAGONAL, _DIAGONAL] += sigma2[po][:, None]
+        r = (mV[po] - self.corners[slot]).reshape(-1, 8)
+        d2 = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
         # the choices, one observation at a time, in Python: a frame has a few of each
-        rows, near_rows, label_list = d2.tolist(), near.tolist(), labels.tolist()
-        used = [False] * len(J)
+        near_pairs: list[list[tuple[float, int]]] = [[] for _ in frame.slots]  # (d2, slot)
+        label_pairs: list[list[tuple[float, int]]] = [[] for _ in frame.slots]
+        for o, j, dist, is_near, is_label in zip(
+            po.tolist(), slot.tolist(), d2.tolist(), near[po, pl].tolist(),
+            same_label[po, pl].tolist(), strict=True,
+        ):
+            if is_near:
+                near_pairs[o].append((dist, j))
+            if is_label:
+                label_pairs[o].append((dist, j))
+        used: set[int] = set()
         gate, ratio = self._slot_gate, self.cfg.second_nearest_ratio
-        accepted: list[tuple[int, int]] = []  # (observation, local slot)
+        accepted: list[tuple[int, int]] = []  # (observation, map slot)
         for o, obs in enumerate(frame.slots):
             chosen = None
-            row = rows[o]
-            if (
-                obs.label is not None
-                and obs.label_confidence >= self.cfg.id_confidence_high
-                and obs.label in self.by_label
-            ):
-                mine = [j for j, lab in enumerate(label_list) if lab == obs.label and not used[j]]
-                if mine:
-                    j = min(mine, key=row.__getitem__)
-                    chosen = j if row[j] <= gate else None
+            if obs.label_confidence >= self.cfg.id_confidence_high:
+                mine = [pair for pair in label_pairs[o] if pair[1] not in used]
+                if mine:  # the nearest slot of that label (pairs sort by d2, then index)
+                    dist, j = min(mine)
+                    chosen = j if dist <= gate else None
                 # else: a misread (or a lost filter): the geometry decides below
             if chosen is None:
-                cand = [j for j, ok in enumerate(near_rows[o]) if ok and not used[j]]
+                cand = sorted(pair for pair in near_pairs[o] if pair[1] not in used)
                 if cand:
-                    order = sorted(cand, key=row.__getitem__)
-                    best = row[order[0]]
-                    second = row[order[1]] if len(order) > 1 else math.inf
+                    best = cand[0][0]
+                    second = cand[1][0] if len(cand) > 1 else math.inf
                     if best <= gate and second >= ratio * max(best, 8):
-                        chosen = order[0]
+                        chosen = cand[0][1]
             if chosen is None:
                 out.rejected["slot"] += 1
                 continue
-            used[chosen] = True
+            used.add(chosen)
             accepted.append((o, chosen))
         if not accepted:
             return
         obs_idx = [o for o, _ in accepted]
-        local_idx = [j for _, j in accepted]
-        map_idx = J[local_idx].tolist()
-        n = len(accepted)  # all the frame's slots: one measurement, block-diagonal R
-        blocks = Rmap[local_idx]
-        blocks[:, diagonal, diagonal] += (sigma[obs_idx] ** 2)[:, None]
-        R = np.zeros((n, 8, n, 8))
-        R[np.arange(n), :, np.arange(n), :] = blocks
-        R = R.reshape(8 * n, 8 * n)
+        map_idx = [j for _, j in accepted]
+        # all the frame's slots: one measurement, in the vehicle frame; R block-diagonal in
+        # 2x2 corner blocks (the map's, turned into the vehicle frame, plus the detector's)
+        Rt = np.array([[c, s], [-s, c]])
+        blocks = (Rt @ self._corner_cov_scaled[map_idx] @ Rt.T).reshape(-1, 2, 2)  # (4n,2,2)
+        blocks[:, _DIAGONAL[:2], _DIAGONAL[:2]] += np.repeat(sigma2[obs_idx], 4)[:, None]
+        k = np.arange(len(blocks))
+        R = np.zeros((len(blocks), 2, len(blocks), 2))
+        R[k, :, k, :] = blocks
+        R = R.reshape(2 * len(blocks), 2 * len(blocks))
         m = PointMeasurement(V[obs_idx].ravel(), R, self.corners[map_idx].reshape(-1, 2))
         out.slots.extend(map_idx)
         self._accept(out, "slot", m, observations=len(accepted))
+
+    def _slots_near(self, pose: FloatArray, reach: float) -> tuple[FloatArray, ...]:
+        """The map slots around the pose, at least all whose centre lies within ``reach`` m:
+        their indices (ascending), centres (L, 2) and label codes (L,). The KD-tree is asked
+        for a wider ball (the local map), which serves every frame until the car's reach
+        leaves it."""
+        x0, y0, radius, *local = self._local_slots
+        if math.hypot(pose[0] - x0, pose[1] - y0) + reach > radius:
+            radius = reach + _LOCAL_MAP_MARGIN
+            idx = np.array(self._slot_tree.query_ball_point(pose[:2], radius), dtype=int)
+            local = [idx, self.centres[idx], self._slot_codes[idx]]
+            self._local_slots = (float(pose[0]), float(pose[1]), radius, *local)
+        return tuple(local)
 
     def _accept(self, out: Associations, kind: str, measurement, observations: int = 1) -> None:
         out.measurements.append(measurement)

@@ -207,16 +207,22 @@ class Localizer:
         slots = assoc.slots
         if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
-        if slots:
-            idx = np.asarray(slots)
-            floor = self.local_map.corner_cov[idx].mean(axis=(0, 1))
-            heading_floor = float(self.local_map.heading_var[idx].mean())
+        k = self.cfg.map_floor_scale
+        if slots:  # a frame has a few slots: Python floats beat array calls here
+            terms = zip(*(self.local_map.floor_terms[i] for i in slots), strict=True)
+            xx, xy, yy, heading = (k * sum(column) / len(slots) for column in terms)
         else:  # markings only: maps keep no covariance for them, the configured one
-            floor = np.eye(2) * self.cfg.marking_map_sigma**2
-            heading_floor = 0.0
+            xx = yy = k * self.cfg.marking_map_sigma**2
+            xy = heading = 0.0
         P = self.filter.P
-        P[:2, :2] += positive_part_2x2(self.cfg.map_floor_scale * floor - P[:2, :2])
-        P[2, 2] = max(P[2, 2], self.cfg.map_floor_scale * heading_floor)
+        a, b, c = _positive_part(
+            xx - float(P[0, 0]), xy - 0.5 * float(P[0, 1] + P[1, 0]), yy - float(P[1, 1])
+        )
+        P[0, 0] += a
+        P[0, 1] += b
+        P[1, 0] += b
+        P[1, 1] += c
+        P[2, 2] = max(P[2, 2], k * heading)
 
     def _frame_gate(self, dof: int) -> float:
         if dof not in self._frame_gates:
@@ -282,12 +288,18 @@ class Localizer:
 def positive_part_2x2(A: FloatArray) -> FloatArray:
     """The positive semi-definite part of a symmetric 2x2 matrix (its negative eigenvalue,
     if any, set to 0), in closed form."""
-    a, b, c = float(A[0, 0]), 0.5 * float(A[0, 1] + A[1, 0]), float(A[1, 1])
+    a, b, c = _positive_part(float(A[0, 0]), 0.5 * float(A[0, 1] + A[1, 0]), float(A[1, 1]))
+    return np.array([[a, b], [b, c]])
+
+
+def _positive_part(a: float, b: float, c: float) -> tuple[float, float, float]:
+    """:func:`positive_part_2x2` of ``[[a, b], [b, c]]``, as its entries ``a, b, c``."""
     mean, radius = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
     high, low = mean + radius, mean - radius
     if low >= 0.0:
-        return np.array([[a, b], [b, c]])
+        return a, b, c
     if high <= 0.0:
-        return np.zeros((2, 2))
+        return 0.0, 0.0, 0.0
     # high * v v^T, with v v^T = (A - low I) / (high - low)
-    return high / (high - low) * np.array([[a - low, b], [b, c - low]])
+    scale = high / (high - low)
+    return scale * (a - low), scale * b, scale * (c - low)

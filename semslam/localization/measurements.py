@@ -84,7 +84,11 @@ class PointMeasurement(Measurement):
     def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
         c, s = math.cos(pose[2]), math.sin(pose[2])
         predicted = (self.mP - pose[:2]) @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
-        return self.z - predicted.ravel(), point_jacobian(pose, self.mP)
+        H = np.empty((len(self.mP), 2, 3))  # point_jacobian, from the prediction
+        H[:, :, :2] = ((-c, -s), (s, -c))
+        H[:, 0, 2] = predicted[:, 1]
+        H[:, 1, 2] = -predicted[:, 0]
+        return self.z - predicted.ravel(), H.reshape(-1, 3)
 
 
 @dataclass(frozen=True)
@@ -200,6 +204,8 @@ def _to_map(pose: FloatArray, vP: FloatArray) -> FloatArray:
 
 def stack(measurements: list) -> tuple[FloatArray, FloatArray, list]:
     """Observed vector and block-diagonal covariance of several measurements."""
+    if len(measurements) == 1:  # most frames: slots alone
+        return measurements[0].z, measurements[0].R, measurements
     z = np.concatenate([m.z for m in measurements])
     R = np.zeros((len(z), len(z)))
     i = 0
