@@ -108,3 +108,11 @@ def test_rotation_variance_matches_sampled_rotations():
         H = a.T @ b
         angles.append(math.atan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
     assert rotation_variance(corners, C) == pytest.approx(np.var(angles), rel=0.05)
+
+
+def test_wrap_angle_of_a_float_is_the_array_arithmetic():
+    angles = np.r_[np.random.default_rng(0).uniform(-50, 50, 2000), 0.0, -0.0, 1e-17, -1e-17,
+                   math.pi, -math.pi, 2 * math.pi, 7 * math.pi]
+    one_by_one = [wrap_angle(float(a)) for a in angles]
+    assert all(type(w) is float for w in one_by_one)
+    np.testing.assert_array_equal(one_by_one, wrap_angle(angles))

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from semslam.geometry import between, compose, inverse_transform_points
-from semslam.localization.filter import CtrvFilter, ProcessNoise, odometry_measurement
+from semslam.localization.filter import (
+    CtrvFilter,
+    Innovation,
+    ProcessNoise,
+    odometry_measurement,
+)
 from semslam.localization.measurements import (
     MarkingMeasurement,
     PointMeasurement,
@@ -235,3 +240,13 @@ def test_exact_odometry_samples_are_dead_reckoned_exactly(calibrated):
     # start of the step: 3e-3 rad here)
     np.testing.assert_allclose(f.pose[:2], truth[:2], atol=0.01 if calibrated else 2e-4)
     assert abs(f.pose[2] - truth[2]) < (1e-4 if calibrated else 1e-5)
+
+
+def test_the_innovation_solves_positive_definite_and_indefinite_systems_alike():
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(12, 12))
+    C, nu = rng.normal(size=(5, 12)), rng.normal(size=12)
+    for S in (A @ A.T + np.eye(12), A + A.T):  # Cholesky, and the LU fallback
+        innovation = Innovation(nu, S, C)
+        np.testing.assert_allclose(innovation.nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
+        np.testing.assert_allclose(innovation.gain, C @ np.linalg.inv(S), rtol=1e-8, atol=1e-12)

@@ -1,0 +1,91 @@
+"""The localizer's slot association: the gate's distance, the local map, labels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from semslam.config import LocalizationConfig
+from semslam.geometry import rotation
+from semslam.localization.association import LocalMap
+from semslam.localization.measurements import point_jacobian
+from semslam.types import FrameObservations, SemanticMap, Slot, SlotObservation
+
+CFG = LocalizationConfig()
+SIGMA = 0.05  # corner sigma the observations declare (above the configured floor)
+RECTANGLE = np.array([[0.0, 0.0], [2.5, 0.0], [2.5, 5.0], [0.0, 5.0]])
+
+
+def _slot(i: int, origin, label=None, covariance=None) -> Slot:
+    cov = np.tile(np.diag([0.02**2, 0.005**2]), (4, 1, 1)) if covariance is None else covariance
+    return Slot(i, label, 0.99 if label else 0.0, RECTANGLE + origin, cov, "perpendicular", 5)
+
+
+def _seen(slot: Slot, pose, offset=None, label=None, confidence=0.0) -> SlotObservation:
+    """``slot`` seen from ``pose``, its corners moved by ``offset`` (8,) in the vehicle frame."""
+    vP = (slot.corners - pose[:2]) @ rotation(pose[2])
+    if offset is not None:
+        vP = vP + offset.reshape(4, 2)
+    return SlotObservation(vP, "perpendicular", label, confidence, 0.9, SIGMA)
+
+
+def _reference_d2(slot: Slot, pose, P, observed: SlotObservation) -> float:
+    """The gate's distance written out in the vehicle frame, as the EKF sees it."""
+    H = point_jacobian(pose, slot.corners)
+    Rv = rotation(pose[2]).T
+    R = np.zeros((8, 8))
+    for k in range(4):
+        R[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = (
+            CFG.map_covariance_scale * Rv @ slot.corner_covariances[k] @ Rv.T
+            + SIGMA**2 * np.eye(2)
+        )
+    r = observed.vCorners.ravel() - ((slot.corners - pose[:2]) @ rotation(pose[2])).ravel()
+    return float(r @ np.linalg.solve(H @ P @ H.T + R, r))
+
+
+def test_the_gate_distance_is_the_vehicle_frame_mahalanobis_distance():
+    # an anisotropic map covariance and a turned car: a frame mix-up would move the border
+    slot = _slot(0, (6.0, 2.0))
+    local = LocalMap(SemanticMap(slots=(slot,)), CFG)
+    pose = np.array([1.0, -0.5, 0.7])
+    P = np.array([[0.04, 0.01, 0.002], [0.01, 0.02, -0.001], [0.002, -0.001, 0.0004]])
+    gate = chi2.ppf(CFG.slot_gate, 8)
+    direction = np.random.default_rng(3).normal(size=8)
+    unit = _reference_d2(slot, pose, P, _seen(slot, pose, direction))  # d2 grows as scale^2
+    for factor, accepted in ((0.95, 1), (1.05, 0)):
+        seen = _seen(slot, pose, direction * math.sqrt(factor * gate / unit))
+        assert math.isclose(_reference_d2(slot, pose, P, seen), factor * gate, rel_tol=1e-9)
+        out = local.associate(FrameObservations(0.0, slots=(seen,)), pose, P)
+        assert out.count == accepted
+        assert out.rejected["slot"] == 1 - accepted
+
+
+def test_the_local_map_follows_the_car():
+    far = 60.0  # metres between the two slots: far beyond one local map
+    slots = (_slot(0, (3.0, 3.0)), _slot(1, (far + 3.0, 3.0)))
+    local = LocalMap(SemanticMap(slots=slots), CFG)
+    P = np.diag([0.01, 0.01, 1e-4])
+    for slot in (*slots, slots[0]):  # there, over there, and back
+        pose = np.array([slot.corners[0, 0] - 3.0, 0.0, 0.0])
+        out = local.associate(FrameObservations(0.0, slots=(_seen(slot, pose),)), pose, P)
+        assert out.slots == [slot.id]
+
+
+def test_a_confident_label_picks_its_slot_and_a_misread_falls_back_to_geometry():
+    # two slots side by side; the car's pose is off by half a slot width, so by geometry
+    # alone the observation of B2 sits between the two and the ratio test refuses it
+    slots = (_slot(0, (0.0, 3.0), "B1"), _slot(1, (2.5, 3.0), "B2"))
+    local = LocalMap(SemanticMap(slots=slots), CFG)
+    truth = np.array([2.5, 0.0, 0.0])
+    believed = truth + [-1.25, 0.0, 0.0]
+    P = np.diag([1.0, 1.0, 1e-4])  # an unsure filter
+    frame = [_seen(slots[1], truth, label=label, confidence=conf)
+             for label, conf in (("B2", 0.99), (None, 0.0), ("C9", 0.99))]
+    by_label, unread, misread = (
+        local.associate(FrameObservations(0.0, slots=(o,)), believed, P) for o in frame
+    )
+    assert by_label.slots == [1]
+    assert unread.slots == [] and unread.rejected["slot"] == 1
+    assert misread.slots == [] and misread.rejected["slot"] == 1
