@@ -41,7 +41,6 @@ from semslam.types import FrameObservations, SemanticMap
 _MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-tree
 _MINUS_IDENTITY_8x2 = -np.tile(np.eye(2), (4, 1))  # d(mV - mP)/d(x, y) for four corners
 _QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])  # (d_x, d_y) @ it = (d_y, -d_x)
-_DIAGONAL = np.arange(8)
 _LOCAL_MAP_MARGIN = 4.0  # m: the local map of slots reaches this far beyond a frame's reach
 
 
@@ -71,11 +70,10 @@ class LocalMap:
         self.corner_cov = np.array([s.corner_covariances for s in self.slots]).reshape(-1, 4, 2, 2)
         self.heading_var = np.array([s.orientation_variance for s in self.slots], dtype=float)
         self.centres = self.corners.mean(axis=1)  # (S, 2)
-        self._corner_cov_scaled = cfg.map_covariance_scale * self.corner_cov  # as the gate uses it
-        self._corner_blocks = np.zeros((len(self.slots), 8, 8))  # the same, (S, 8, 8) blocks
+        self._corner_blocks = np.zeros((len(self.slots), 8, 8))  # (S, 8, 8): as R uses them
         for k in range(4):
             self._corner_blocks[:, 2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = (
-                self._corner_cov_scaled[:, k]
+                cfg.map_covariance_scale * self.corner_cov[:, k]
             )
         mean_cov = self.corner_cov.mean(axis=1)  # (S, 2, 2) over the four corners
         self.floor_terms = [  # per slot: mean corner covariance xx, xy, yy; heading variance
@@ -173,30 +171,30 @@ class LocalMap:
         H[:, :, :2] = _MINUS_IDENTITY_8x2
         H[:, :, 2] = (d @ _QUARTER_TURN).reshape(-1, 8)  # (d_y, -d_x) per corner
         S = H @ P @ H.transpose(0, 2, 1) + self._corner_blocks[slot]
-        S[:, _DIAGONAL, _DIAGONAL] += sigma2[po][:, None]
+        S.reshape(-1, 64)[:, ::9] += sigma2[po][:, None]  # the diagonals (S is contiguous)
         r = (mV[po] - self.corners[slot]).reshape(-1, 8)
-        d2 = np.einsum("pi,pi->p", r, np.linalg.solve(S, r[..., None])[..., 0])
+        d2 = (r[:, None, :] @ np.linalg.solve(S, r[..., None]))[:, 0, 0]
         # the choices, one observation at a time, in Python: a frame has a few of each
-        near_pairs: list[list[tuple[float, int]]] = [[] for _ in frame.slots]  # (d2, slot)
-        label_pairs: list[list[tuple[float, int]]] = [[] for _ in frame.slots]
-        for o, j, dist, is_near, is_label in zip(
+        near_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
+        label_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
+        for q, (o, j, dist, is_near, is_label) in enumerate(zip(
             po.tolist(), slot.tolist(), d2.tolist(), near[po, pl].tolist(),
             same_label[po, pl].tolist(), strict=True,
-        ):
+        )):  # per observation: (d2, map slot, pair)
             if is_near:
-                near_pairs[o].append((dist, j))
+                near_pairs[o].append((dist, j, q))
             if is_label:
-                label_pairs[o].append((dist, j))
+                label_pairs[o].append((dist, j, q))
         used: set[int] = set()
         gate, ratio = self._slot_gate, self.cfg.second_nearest_ratio
-        accepted: list[tuple[int, int]] = []  # (observation, map slot)
+        accepted: list[tuple[int, int, int]] = []  # (observation, map slot, pair)
         for o, obs in enumerate(frame.slots):
             chosen = None
             if obs.label_confidence >= self.cfg.id_confidence_high:
                 mine = [pair for pair in label_pairs[o] if pair[1] not in used]
                 if mine:  # the nearest slot of that label (pairs sort by d2, then index)
-                    dist, j = min(mine)
-                    chosen = j if dist <= gate else None
+                    nearest = min(mine)
+                    chosen = nearest if nearest[0] <= gate else None
                 # else: a misread (or a lost filter): the geometry decides below
             if chosen is None:
                 cand = sorted(pair for pair in near_pairs[o] if pair[1] not in used)
@@ -204,26 +202,29 @@ class LocalMap:
                     best = cand[0][0]
                     second = cand[1][0] if len(cand) > 1 else math.inf
                     if best <= gate and second >= ratio * max(best, 8):
-                        chosen = cand[0][1]
+                        chosen = cand[0]
             if chosen is None:
                 out.rejected["slot"] += 1
                 continue
-            used.add(chosen)
-            accepted.append((o, chosen))
+            used.add(chosen[1])
+            accepted.append((o, chosen[1], chosen[2]))
         if not accepted:
             return
-        obs_idx = [o for o, _ in accepted]
-        map_idx = [j for _, j in accepted]
-        # all the frame's slots: one measurement, in the vehicle frame; R block-diagonal in
-        # 2x2 corner blocks (the map's, turned into the vehicle frame, plus the detector's)
-        Rt = np.array([[c, s], [-s, c]])
-        blocks = (Rt @ self._corner_cov_scaled[map_idx] @ Rt.T).reshape(-1, 2, 2)  # (4n,2,2)
-        blocks[:, _DIAGONAL[:2], _DIAGONAL[:2]] += np.repeat(sigma2[obs_idx], 4)[:, None]
-        k = np.arange(len(blocks))
-        R = np.zeros((len(blocks), 2, len(blocks), 2))
-        R[k, :, k, :] = blocks
-        R = R.reshape(2 * len(blocks), 2 * len(blocks))
-        m = PointMeasurement(V[obs_idx].ravel(), R, self.corners[map_idx].reshape(-1, 2))
+        obs_idx, map_idx, pair_idx = (list(column) for column in zip(*accepted, strict=True))
+        # all the frame's slots: one measurement, turned onto the map's axes by the predicted
+        # heading (z = R(yaw) vP); R block-diagonal: the map's corner blocks plus the
+        # detector's isotropic noise, which no turn changes
+        n = len(accepted)
+        R = np.zeros((n, 8, n, 8))
+        k = np.arange(n)
+        R[k, :, k, :] = self._corner_blocks[map_idx]
+        R = R.reshape(8 * n, 8 * n)
+        R.reshape(-1)[:: 8 * n + 1] += np.repeat(sigma2[obs_idx], 8)
+        z = (mV[obs_idx] - pose[:2]).ravel()
+        # at this pose the turned model's residual and Jacobian are the gate's
+        linearised = (tuple(pose), r[pair_idx].ravel(), H[pair_idx].reshape(-1, 3))
+        m = PointMeasurement(z, R, self.corners[map_idx].reshape(-1, 2), turn=float(pose[2]),
+                             linearised=linearised)
         out.slots.extend(map_idx)
         self._accept(out, "slot", m, observations=len(accepted))
 

@@ -69,23 +69,34 @@ class Measurement:
 
 @dataclass(frozen=True)
 class PointMeasurement(Measurement):
-    """Map points ``mP`` (N, 2) observed at ``z`` = (N, 2) flattened, in the vehicle frame."""
+    """Map points ``mP`` (N, 2) observed at ``z`` = (N, 2) flattened, in the vehicle frame
+    turned by ``turn`` rad: ``z = R(turn) vP`` (``turn`` 0: the vehicle frame itself).
+
+    A fixed turn is an orthogonal change of the measurement's frame: the filter's update is
+    the same in any such frame. The localizer turns slot corners by the predicted heading,
+    which puts them on the map's axes, where the map's corner covariances need no turning.
+    """
 
     mP: FloatArray
+    turn: float = field(default=0.0, kw_only=True)
+    # (pose, residual, Jacobian) already worked out at one pose (by the association's gate)
+    linearised: tuple | None = field(default=None, kw_only=True, compare=False, repr=False)
 
     def predict(self, poses: FloatArray) -> FloatArray:
         poses = np.atleast_2d(poses)
         d = self.mP[None, :, :] - poses[:, None, :2]
-        return _rotate_to_vehicle(poses[:, 2], d).reshape(len(poses), -1)
+        return _rotate_to_vehicle(poses[:, 2] - self.turn, d).reshape(len(poses), -1)
 
     def jacobian(self, pose: FloatArray) -> FloatArray:
-        return point_jacobian(pose, self.mP)
+        return point_jacobian(np.array([pose[0], pose[1], pose[2] - self.turn]), self.mP)
 
     def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
-        c, s = math.cos(pose[2]), math.sin(pose[2])
+        if self.linearised is not None and self.linearised[0] == tuple(pose):
+            return self.linearised[1], self.linearised[2]
+        c, s = math.cos(pose[2] - self.turn), math.sin(pose[2] - self.turn)
         predicted = (self.mP - pose[:2]) @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
         H = np.empty((len(self.mP), 2, 3))  # point_jacobian, from the prediction
-        H[:, :, :2] = ((-c, -s), (s, -c))
+        H[:, :, :2] = np.array([[-c, -s], [s, -c]])
         H[:, 0, 2] = predicted[:, 1]
         H[:, 1, 2] = -predicted[:, 0]
         return self.z - predicted.ravel(), H.reshape(-1, 3)
