@@ -10,7 +10,7 @@ from scipy.stats import chi2
 from semslam.config import LocalizationConfig
 from semslam.geometry import rotation
 from semslam.localization.association import LocalMap
-from semslam.localization.measurements import point_jacobian
+from semslam.localization.measurements import PointMeasurement, point_jacobian
 from semslam.types import FrameObservations, SemanticMap, Slot, SlotObservation
 
 CFG = LocalizationConfig()
@@ -89,3 +89,16 @@ def test_a_confident_label_picks_its_slot_and_a_misread_falls_back_to_geometry()
     assert by_label.slots == [1]
     assert unread.slots == [] and unread.rejected["slot"] == 1
     assert misread.slots == [] and misread.rejected["slot"] == 1
+
+
+def test_the_slot_measurement_carries_its_own_linearisation_at_the_pose():
+    slots = (_slot(0, (4.0, 2.0)), _slot(1, (6.5, 2.0)), _slot(2, (-3.0, -8.0)))
+    local = LocalMap(SemanticMap(slots=slots), CFG)
+    pose, P = np.array([0.5, -1.0, 0.6]), np.diag([0.01, 0.02, 1e-4])
+    rng = np.random.default_rng(5)
+    seen = tuple(_seen(s, pose, rng.normal(scale=0.03, size=8)) for s in slots)
+    m = local.associate(FrameObservations(0.0, slots=seen), pose, P).measurements[0]
+    fresh = PointMeasurement(m.z, m.R, m.mP, turn=m.turn)  # no cached linearisation
+    for got, expected in zip(m.linearise(pose), fresh.linearise(pose), strict=True):
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+    np.testing.assert_allclose(m.residual(m.predict(pose)[0]), m.linearise(pose)[0], atol=1e-12)

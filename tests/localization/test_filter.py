@@ -42,12 +42,41 @@ def test_point_measurement_predicts_vehicle_frame_points_and_its_jacobian_is_rig
     np.testing.assert_allclose(m.jacobian(POSE), numerical_jacobian(m, POSE), atol=1e-7)
 
 
-def test_point_measurement_linearises_as_its_residual_and_jacobian():
+@pytest.mark.parametrize("turn", [0.0, 0.7, -2.5])
+def test_point_measurement_linearises_as_its_residual_and_jacobian(turn):
     mP = np.array([[5.0, 1.0], [4.0, -3.0], [-1.0, 7.5]])
-    m = PointMeasurement(np.arange(6.0), np.eye(6), mP)
+    m = PointMeasurement(np.arange(6.0), np.eye(6), mP, turn=turn)
     r, H = m.linearise(POSE)
     np.testing.assert_allclose(r, m.residual(m.predict(POSE)[0]), atol=1e-12)
     np.testing.assert_allclose(H, m.jacobian(POSE), atol=1e-12)
+    np.testing.assert_allclose(H, numerical_jacobian(m, POSE), atol=1e-7)
+
+
+def test_a_turned_point_measurement_is_the_vehicle_frame_one_turned():
+    mP = np.array([[5.0, 1.0], [4.0, -3.0]])
+    turn = 0.4
+    turned = PointMeasurement(np.zeros(4), np.eye(4), mP, turn=turn)
+    c, s = np.cos(turn), np.sin(turn)
+    plain = inverse_transform_points(POSE, mP) @ np.array([[c, s], [-s, c]])  # R(turn) vP
+    np.testing.assert_allclose(turned.predict(POSE)[0], plain.ravel(), atol=1e-12)
+
+
+def test_the_ekf_update_is_the_same_in_a_turned_measurement_frame():
+    mP = np.array([[5.0, 1.0], [4.0, -3.0], [-1.0, 7.5]])
+    vR = np.diag([0.01, 0.02, 0.03, 0.01, 0.02, 0.05])
+    z = inverse_transform_points(POSE + [0.1, -0.2, 0.03], mP).ravel()
+    Q = np.kron(np.eye(3), np.array([[np.cos(POSE[2]), -np.sin(POSE[2])],
+                                     [np.sin(POSE[2]), np.cos(POSE[2])]]))  # R(turn) per point
+    results = []
+    for m in (PointMeasurement(z, vR, mP),
+              PointMeasurement(Q @ z, Q @ vR @ Q.T, mP, turn=POSE[2])):
+        f = CtrvFilter(np.r_[POSE, 1.0, 0.1], np.diag([0.3, 0.3, 0.01, 0.1, 0.01]), NOISE)
+        innovation = f.innovation([m], m.R)
+        f.apply(innovation)
+        results.append((innovation.nis, f.x, f.P))
+    np.testing.assert_allclose(results[0][0], results[1][0], rtol=1e-9)
+    np.testing.assert_allclose(results[0][1], results[1][1], atol=1e-12)
+    np.testing.assert_allclose(results[0][2], results[1][2], atol=1e-12)
 
 
 def test_tag_measurement_is_the_relative_pose_and_its_jacobian_is_right():
