@@ -97,6 +97,12 @@ class LocalMap:
             owners.extend([i] * n)
         self._marking_tree = cKDTree(np.vstack(samples)) if samples else None
         self._marking_owner = np.array(owners, dtype=int)
+        self._marking_len = np.hypot(*(self.marking_b - self.marking_a).T)
+        self._marking_u = (self.marking_b - self.marking_a) / np.maximum(
+            self._marking_len, 1e-9
+        )[:, None]  # (M, 2) unit direction a -> b
+        self._marking_n = self._marking_u @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # (-u_y, u_x)
+        self._local_markings: tuple = (0.0, 0.0, -1.0)  # x, y, r (< 0: none), markings
         self._slot_gate = chi2.ppf(cfg.slot_gate, 8)
         self._tag_gate = chi2.ppf(cfg.tag_gate, 3)
         self._marking_gates = {n: chi2.ppf(cfg.marking_gate, n) for n in range(1, 5)}
@@ -241,6 +247,18 @@ class LocalMap:
             self._local_slots = (float(pose[0]), float(pose[1]), radius, *local)
         return tuple(local)
 
+    def _markings_near(self, pose: FloatArray, reach: float) -> FloatArray:
+        """Indices (ascending) of the map markings around the pose, at least all with a
+        sample point within ``reach`` m, from a wider ball kept while the car's reach stays
+        inside it (the local map, as for slots)."""
+        x0, y0, radius, *local = self._local_markings
+        if math.hypot(pose[0] - x0, pose[1] - y0) + reach > radius:
+            radius = reach + _LOCAL_MAP_MARGIN
+            owners = self._marking_tree.query_ball_point(pose[:2], radius)
+            local = [np.unique(self._marking_owner[owners])]
+            self._local_markings = (float(pose[0]), float(pose[1]), radius, *local)
+        return local[0]
+
     def _accept(self, out: Associations, kind: str, measurement, observations: int = 1) -> None:
         out.measurements.append(measurement)
         out.kinds.append(kind)
@@ -258,7 +276,7 @@ class LocalMap:
         sigma = np.array([  # end point across the line: as declared, else configured
             cfg.marking_endpoint_sigma if m.sigma is None else m.sigma for m in frame.markings
         ])
-        length = np.linalg.norm(vE[:, 1] - vE[:, 0], axis=1)
+        length = np.hypot(*(vE[:, 1] - vE[:, 0]).T)
         long_enough = length >= cfg.marking_min_length
         vE, sigma, length = vE[long_enough], sigma[long_enough], length[long_enough]
         if not len(vE):
@@ -267,29 +285,25 @@ class LocalMap:
         Rm = np.array([[c, -s], [s, c]])
         mE = vE @ Rm.T + pose[:2]  # (D, 2, 2) map frame
         reach = float(np.abs(vE).max()) + cfg.search_radius / 2 + _MARKING_SAMPLE
-        local = np.unique(
-            self._marking_owner[self._marking_tree.query_ball_point(pose[:2], reach)]
-        )  # every (detection, local marking) pair is a candidate; the tests below sort them
-        det = np.repeat(np.arange(len(vE)), len(local))
-        own = np.tile(local, len(vE))
-        a, b = self.marking_a[own], self.marking_b[own]
-        L = np.maximum(np.linalg.norm(b - a, axis=1), 1e-9)
-        u = (b - a) / L[:, None]
-        n = np.column_stack([-u[:, 1], u[:, 0]])
+        # every (detection, local marking) pair is a candidate; the tests below sort them
+        local = self._markings_near(pose, reach)
+        det = np.arange(len(vE)).repeat(len(local))
+        own = np.broadcast_to(local, (len(vE), len(local))).reshape(-1)
+        u, n = self._marking_u[own], self._marking_n[own]  # (pairs, 2): along, across
         d_obs = (mE[det, 1] - mE[det, 0]) / length[det, None]
-        along = np.einsum("pk,pek->pe", u, mE[det] - a[:, None, :])  # (pairs, 2)
-        keep = (np.abs(np.einsum("pk,pk->p", n, d_obs)) < math.sin(
+        from_a = mE[det] - self.marking_a[own][:, None, :]  # (pairs, 2 ends, 2)
+        along = (from_a @ u[:, :, None])[..., 0]  # (pairs, 2 ends)
+        across = (from_a @ n[:, :, None])[..., 0]
+        keep = (np.abs((n * d_obs).sum(axis=1)) < math.sin(
             math.radians(cfg.marking_max_angle_deg)
-        )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < L + 0.5)
-        det, own, a, n = det[keep], own[keep], a[keep], n[keep]
+        )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < self._marking_len[own] + 0.5)
+        det, own, n, r = det[keep], own[keep], n[keep], -across[keep]  # r: 0 - across
         R1 = sigma[det] ** 2 + cfg.marking_map_sigma**2  # (pairs,)
-        # residuals (0 - across) and their rows [n, n . dR/dyaw e] for both end points
-        r = -np.einsum("pk,pek->pe", n, mE[det] - a[:, None, :])
-        e = vE[det]  # (pairs, 2, 2)
-        dE = np.stack([-s * e[..., 0] - c * e[..., 1], c * e[..., 0] - s * e[..., 1]], -1)
+        # the residuals' rows [n, n . dR/dyaw e] for both end points
+        dE = vE[det] @ np.array([[-s, c], [-c, -s]])  # (pairs, 2, 2): dR/dyaw e
         H = np.empty((len(det), 2, 3))
-        H[..., 0], H[..., 1] = n[:, None, 0], n[:, None, 1]
-        H[..., 2] = np.einsum("pk,pek->pe", n, dE)
+        H[..., :2] = n[:, None, :]
+        H[..., 2] = (dE @ n[:, :, None])[..., 0]
         S = H @ P @ H.transpose(0, 2, 1) + np.eye(2) * R1[:, None, None]
         det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
         d2 = (S[:, 1, 1] * r[:, 0] ** 2 - 2 * S[:, 0, 1] * r[:, 0] * r[:, 1]
@@ -299,13 +313,15 @@ class LocalMap:
             return
         order = np.lexsort((d2, det))
         det, own, d2 = det[order], own[order], d2[order]
-        first = np.flatnonzero(np.r_[True, det[1:] != det[:-1]])
+        first = [0, *(np.flatnonzero(det[1:] != det[:-1]) + 1).tolist()]
+        d2_list = d2.tolist()
         winners = []
         for i, f in enumerate(first):
             nxt = first[i + 1] if i + 1 < len(first) else len(det)
-            runner_up = d2[f + 1] if nxt > f + 1 else math.inf
-            if d2[f] <= self._marking_gates[2] and runner_up >= cfg.second_nearest_ratio * max(
-                d2[f], 2.0
+            runner_up = d2_list[f + 1] if nxt > f + 1 else math.inf
+            best = d2_list[f]
+            if best <= self._marking_gates[2] and runner_up >= cfg.second_nearest_ratio * max(
+                best, 2.0
             ):
                 winners.append(f)
         out.rejected["marking"] += len(vE) - len(winners)
@@ -323,7 +339,7 @@ class LocalMap:
         clamped = m.clamped.reshape(-1, 2).any(axis=1)
         if clamped.any():
             Hm, rm = m.jacobian(pose), m.residual(m.predict(pose)[0])
-        bounds = np.r_[m.rows[0::2], len(m.z)]
+        bounds = np.append(m.rows[0::2], len(m.z))
         good = []
         for i in range(len(w)):
             if not clamped[i]:
