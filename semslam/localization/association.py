@@ -31,6 +31,7 @@ from scipy.stats import chi2
 
 from semslam.config import LocalizationConfig
 from semslam.geometry import FloatArray, rotation
+from semslam.localization.filter import solve_spd
 from semslam.localization.measurements import (
     MarkingMeasurement,
     PointMeasurement,
@@ -347,7 +348,7 @@ class LocalMap:
                 continue
             sl = slice(bounds[i], bounds[i + 1])
             Sb = Hm[sl] @ P @ Hm[sl].T + m.R[sl, sl]
-            if rm[sl] @ np.linalg.solve(Sb, rm[sl]) <= self._marking_gates[sl.stop - sl.start]:
+            if rm[sl] @ solve_spd(Sb, rm[sl]) <= self._marking_gates[sl.stop - sl.start]:
                 good.append(i)
         out.rejected["marking"] += len(w) - len(good)
         if not good:
@@ -366,7 +367,5 @@ class LocalMap:
 
 def _d2(m, pose: FloatArray, P: FloatArray) -> float:
     """Squared Mahalanobis distance of measurement ``m`` at ``pose`` (linearised)."""
-    H = m.jacobian(pose)
-    r = m.residual(m.predict(pose)[0])
-    S = H @ P @ H.T + m.R
-    return float(r @ np.linalg.solve(S, r))
+    r, H = m.linearise(pose)
+    return float(r @ solve_spd(H @ P @ H.T + m.R, r))

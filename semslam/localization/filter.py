@@ -62,12 +62,8 @@ class Innovation:
 
     @functools.cached_property
     def _solved(self) -> FloatArray:
-        """``S^-1 [C^T | nu]`` (m, n + 1): the gain's transpose and ``S^-1 nu``, one solve
-        (Cholesky, LAPACK's ``posv`` called directly: numpy's ``solve`` costs twice as much
-        on frame-sized systems; LU when ``S`` is not numerically positive definite)."""
-        rhs = np.column_stack([self.C.T, self.nu])
-        _, solved, info = lapack.dposv(self.S, rhs)
-        return solved if info == 0 else np.linalg.solve(self.S, rhs)
+        """``S^-1 [C^T | nu]`` (m, n + 1): the gain's transpose and ``S^-1 nu``, one solve."""
+        return solve_spd(self.S, np.column_stack([self.C.T, self.nu]))
 
     @property
     def nis(self) -> float:
@@ -78,6 +74,15 @@ class Innovation:
     def gain(self) -> FloatArray:
         """Kalman gain ``K = C S^-1`` (n, m)."""
         return self._solved[:, :-1].T
+
+
+def solve_spd(S: FloatArray, B: FloatArray) -> FloatArray:
+    """``S^-1 B`` for a symmetric positive definite ``S`` (m, m) and ``B`` (m,) or (m, k):
+    Cholesky, LAPACK's ``posv`` called directly (numpy's ``solve`` costs two to three times
+    as much on the small systems of a frame); LU when ``S`` is not numerically positive
+    definite."""
+    _, solved, info = lapack.dposv(S, B)
+    return solved if info == 0 else np.linalg.solve(S, B)
 
 
 class CtrvFilter:

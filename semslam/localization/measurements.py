@@ -121,6 +121,16 @@ class TagMeasurement(Measurement):
         H[2, 2] = -1.0
         return H
 
+    def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        x, y, yaw = (float(v) for v in pose)
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy = float(self.mTt[0]) - x, float(self.mTt[1]) - y
+        px, py = c * dx + s * dy, -s * dx + c * dy  # the tag's position seen from the pose
+        heading = wrap_angle(float(self.mTt[2]) - yaw)
+        z = self.z
+        r = np.array([z[0] - px, z[1] - py, wrap_angle(float(z[2]) - heading)])
+        return r, np.array([[-c, -s, py], [s, -c, -px], [0.0, 0.0, -1.0]])
+
 
 @dataclass(frozen=True)
 class MarkingMeasurement(Measurement):

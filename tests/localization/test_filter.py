@@ -86,6 +86,14 @@ def test_tag_measurement_is_the_relative_pose_and_its_jacobian_is_right():
     np.testing.assert_allclose(m.jacobian(POSE), numerical_jacobian(m, POSE), atol=1e-7)
 
 
+@pytest.mark.parametrize("pose", [POSE, np.array([-1.0, 4.0, 3.1]), np.array([2.0, 2.0, -3.1])])
+def test_tag_measurement_linearises_as_its_residual_and_jacobian(pose):
+    m = TagMeasurement(np.array([1.0, -0.5, 3.0]), np.eye(3), np.array([8.0, 2.0, -2.9]))
+    r, H = m.linearise(pose)
+    np.testing.assert_allclose(r, m.residual(m.predict(pose)[0]), atol=1e-12)
+    np.testing.assert_allclose(H, m.jacobian(pose), atol=1e-12)
+
+
 def test_marking_measurement_measures_across_inside_and_the_end_point_beyond():
     a, b = np.array([[0.0, 0.0]]), np.array([[10.0, 0.0]])
     pose = np.array([2.0, 1.0, 0.3])
