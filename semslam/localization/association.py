@@ -177,8 +177,9 @@ class LocalMap:
         H = np.empty((len(po), 8, 3))  # of the map-frame residual mV - mP
         H[:, :, :2] = _MINUS_IDENTITY_8x2
         H[:, :, 2] = (d @ _QUARTER_TURN).reshape(-1, 8)  # (d_y, -d_x) per corner
-        S = H @ P @ H.transpose(0, 2, 1) + self._corner_blocks[slot]
-        S.reshape(-1, 64)[:, ::9] += sigma2[po][:, None]  # the diagonals (S is contiguous)
+        D = self._corner_blocks[slot]  # (p, 8, 8) the pair's R: the map's corner blocks ...
+        D.reshape(-1, 64)[:, ::9] += sigma2[po][:, None]  # ... and the detector's noise
+        S = H @ P @ H.transpose(0, 2, 1) + D
         r = (mV[po] - self.corners[slot]).reshape(-1, 8)
         d2 = (r[:, None, :] @ np.linalg.solve(S, r[..., None]))[:, 0, 0]
         # the choices, one observation at a time, in Python: a frame has a few of each
@@ -221,12 +222,9 @@ class LocalMap:
         # all the frame's slots: one measurement, turned onto the map's axes by the predicted
         # heading (z = R(yaw) vP); R block-diagonal: the map's corner blocks plus the
         # detector's isotropic noise, which no turn changes
-        n = len(accepted)
-        R = np.zeros((n, 8, n, 8))
-        k = np.arange(n)
-        R[k, :, k, :] = self._corner_blocks[map_idx]
-        R = R.reshape(8 * n, 8 * n)
-        R.reshape(-1)[:: 8 * n + 1] += np.repeat(sigma2[obs_idx], 8)
+        R = np.zeros((8 * len(accepted), 8 * len(accepted)))
+        for i, block in enumerate(D[pair_idx]):
+            R[8 * i : 8 * i + 8, 8 * i : 8 * i + 8] = block
         z = (mV[obs_idx] - pose[:2]).ravel()
         # at this pose the turned model's residual and Jacobian are the gate's
         linearised = (tuple(pose), r[pair_idx].ravel(), H[pair_idx].reshape(-1, 3))
