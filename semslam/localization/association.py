@@ -142,14 +142,14 @@ class LocalMap:
                 out.rejected["tag"] += 1
 
     def _slots(self, frame, pose, P, out: Associations) -> None:
-        """All (observation, nearby map slot) distances at once, then per observation: the
-        slot of its confident label if that passes the gate, else the nearest slot by
-        Mahalanobis distance if it passes the gate and the second-nearest test.
+        """The Mahalanobis distances of all (observation, nearby map slot) pairs that can
+        be chosen (the slot is near, or carries the label read) at once; then the choices
+        (:meth:`_choose_slots`); then one measurement of all the accepted slots.
 
-        The distances are worked out in the map frame: turning every corner's residual and
-        Jacobian rows by the predicted heading is an orthogonal change of frame, which
-        leaves ``r^T S^-1 r`` as it is, and there the map's corner covariances need no
-        turning (they are indexed once, as (S, 8, 8) blocks)."""
+        Everything is on the map's axes: turning every corner's residual and Jacobian rows
+        by the predicted heading is an orthogonal change of the measurement's frame, which
+        leaves ``r^T S^-1 r`` and the filter's update as they are, and there the map's corner
+        covariances need no turning (they are indexed once, as (S, 8, 8) blocks)."""
         if self._slot_tree is None or not frame.slots:
             return
         V = np.array([o.vCorners for o in frame.slots], dtype=float)  # (O, 4, 2)
@@ -182,7 +182,6 @@ class LocalMap:
         S = H @ P @ H.transpose(0, 2, 1) + D
         r = (mV[po] - self.corners[slot]).reshape(-1, 8)
         d2 = (r[:, None, :] @ np.linalg.solve(S, r[..., None]))[:, 0, 0]
-        # the choices, one observation at a time, in Python: a frame has a few of each
         near_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
         label_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
         for q, (o, j, dist, is_near, is_label) in enumerate(zip(
@@ -193,29 +192,8 @@ class LocalMap:
                 near_pairs[o].append((dist, j, q))
             if is_label:
                 label_pairs[o].append((dist, j, q))
-        used: set[int] = set()
-        gate, ratio = self._slot_gate, self.cfg.second_nearest_ratio
-        accepted: list[tuple[int, int, int]] = []  # (observation, map slot, pair)
-        for o, obs in enumerate(frame.slots):
-            chosen = None
-            if obs.label_confidence >= self.cfg.id_confidence_high:
-                mine = [pair for pair in label_pairs[o] if pair[1] not in used]
-                if mine:  # the nearest slot of that label (pairs sort by d2, then index)
-                    nearest = min(mine)
-                    chosen = nearest if nearest[0] <= gate else None
-                # else: a misread (or a lost filter): the geometry decides below
-            if chosen is None:
-                cand = sorted(pair for pair in near_pairs[o] if pair[1] not in used)
-                if cand:
-                    best = cand[0][0]
-                    second = cand[1][0] if len(cand) > 1 else math.inf
-                    if best <= gate and second >= ratio * max(best, 8):
-                        chosen = cand[0]
-            if chosen is None:
-                out.rejected["slot"] += 1
-                continue
-            used.add(chosen[1])
-            accepted.append((o, chosen[1], chosen[2]))
+        accepted = self._choose_slots(frame.slots, near_pairs, label_pairs)
+        out.rejected["slot"] += len(frame.slots) - len(accepted)
         if not accepted:
             return
         obs_idx, map_idx, pair_idx = (list(column) for column in zip(*accepted, strict=True))
@@ -232,6 +210,35 @@ class LocalMap:
                              linearised=linearised)
         out.slots.extend(map_idx)
         self._accept(out, "slot", m, observations=len(accepted))
+
+    def _choose_slots(self, observed, near_pairs, label_pairs) -> list[tuple[int, int, int]]:
+        """The choices, one observation at a time (a frame has a few): the slot of a
+        confident label when it passes the gate, else the nearest slot by Mahalanobis
+        distance when it passes the gate and the second-nearest test. ``near_pairs`` and
+        ``label_pairs`` hold per observation its (d2, map slot, pair) candidates. Returns
+        the accepted (observation, map slot, pair); a slot takes one observation."""
+        used: set[int] = set()
+        gate, ratio = self._slot_gate, self.cfg.second_nearest_ratio
+        accepted: list[tuple[int, int, int]] = []
+        for o, obs in enumerate(observed):
+            chosen = None
+            if obs.label_confidence >= self.cfg.id_confidence_high:
+                mine = [pair for pair in label_pairs[o] if pair[1] not in used]
+                if mine:  # the nearest slot of that label (pairs sort by d2, then index)
+                    nearest = min(mine)
+                    chosen = nearest if nearest[0] <= gate else None
+                # else: a misread (or a lost filter): the geometry decides below
+            if chosen is None:
+                cand = sorted(pair for pair in near_pairs[o] if pair[1] not in used)
+                if cand:
+                    best = cand[0][0]
+                    second = cand[1][0] if len(cand) > 1 else math.inf
+                    if best <= gate and second >= ratio * max(best, 8):
+                        chosen = cand[0]
+            if chosen is not None:
+                used.add(chosen[1])
+                accepted.append((o, chosen[1], chosen[2]))
+        return accepted
 
     def _slots_near(self, pose: FloatArray, reach: float) -> tuple[FloatArray, ...]:
         """The map slots around the pose, at least all whose centre lies within ``reach`` m:

@@ -161,8 +161,8 @@ class CtrvFilter:
                 nu = np.concatenate([r for r, _ in parts])
                 H = np.vstack([J for _, J in parts])
             C = self.P[:, :3] @ H.T  # H is zero beyond the pose's columns
-            S = H @ C[:3] + R
-            return Innovation(nu, 0.5 * (S + S.T), C)
+            # symmetric up to rounding: the Cholesky of solve_spd reads its upper triangle
+            return Innovation(nu, H @ C[:3] + R, C)
         if mode == "sigma":
             X, w = self.sigma_points()
             Z = np.concatenate([m.predict(X[:, :3]) for m in measurements], axis=1)

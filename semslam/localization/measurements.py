@@ -172,11 +172,12 @@ class MarkingMeasurement(Measurement):
         clamped = (beyond > margin) & (beyond < reach)
         end = np.where((s < 0.5)[:, None], a, b)
         sizes = np.where(clamped, 2, 1)
-        rows = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+        rows = np.cumsum(sizes) - sizes
         z = np.zeros(int(sizes.sum()))
         z[rows[clamped]] = vE[clamped, 0]
         z[rows[clamped] + 1] = vE[clamped, 1]
-        R = np.diag(np.repeat(np.broadcast_to(np.asarray(sigma, float), len(vE)), sizes) ** 2)
+        sigma = np.full(len(vE), sigma) if np.ndim(sigma) == 0 else np.asarray(sigma, float)
+        R = np.diag(np.repeat(sigma * sigma, sizes))
         return MarkingMeasurement(z, R, vE, a, b, clamped, end, rows)
 
     def _normals(self) -> FloatArray:
@@ -200,6 +201,26 @@ class MarkingMeasurement(Measurement):
             out[:, self.rows[self.clamped] + 1] = v[..., 1]
         return out
 
+    def linearise(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`residual` of :meth:`predict` and :meth:`jacobian` at one pose, sharing
+        their work (the EKF update)."""
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        r, H = np.empty(len(self.z)), np.empty((len(self.z), 3))
+        free, clamped = ~self.clamped, self.clamped
+        if free.any():  # 0 minus the distance across the line; rows [n, n . dE/dyaw]
+            e, n, rows = self.vE[free], self._normals()[free], self.rows[free]
+            mE = e @ np.array([[c, s], [-s, c]]) + pose[:2]
+            r[rows] = -((mE - self.a[free]) * n).sum(axis=1)
+            H[rows, :2] = n
+            H[rows, 2] = ((e @ np.array([[-s, c], [-c, -s]])) * n).sum(axis=1)
+        if clamped.any():  # the marking end in the vehicle frame, as point_jacobian
+            rows = self.rows[clamped]
+            v = (self.end[clamped] - pose[:2]) @ np.array([[c, -s], [s, c]])
+            r[rows], r[rows + 1] = self.z[rows] - v[:, 0], self.z[rows + 1] - v[:, 1]
+            H[rows, :2], H[rows + 1, :2] = (-c, -s), (s, -c)
+            H[rows, 2], H[rows + 1, 2] = v[:, 1], -v[:, 0]
+        return r, H
+
     def jacobian(self, pose: FloatArray) -> FloatArray:
         H = np.zeros((len(self.z), 3))
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -217,10 +238,8 @@ class MarkingMeasurement(Measurement):
 
 
 def _to_map(pose: FloatArray, vP: FloatArray) -> FloatArray:
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return np.column_stack(
-        [pose[0] + c * vP[:, 0] - s * vP[:, 1], pose[1] + s * vP[:, 0] + c * vP[:, 1]]
-    )
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return vP @ np.array([[c, s], [-s, c]]) + pose[:2]
 
 
 def stack(measurements: list) -> tuple[FloatArray, FloatArray, list]:

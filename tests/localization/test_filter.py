@@ -110,6 +110,21 @@ def test_marking_measurement_measures_across_inside_and_the_end_point_beyond():
     np.testing.assert_allclose(m.jacobian(pose), numerical_jacobian(m, pose), atol=1e-7)
 
 
+@pytest.mark.parametrize("pose", [POSE, np.array([-1.0, 4.0, 3.1])])
+def test_marking_measurement_linearises_as_its_residual_and_jacobian(pose):
+    # end points inside their marking (one row each) and beyond its end (two rows)
+    vE = np.array([[1.0, 0.3], [4.0, 0.2], [6.5, -0.1], [2.0, 1.1]])
+    mE = vE @ np.array([[np.cos(pose[2]), np.sin(pose[2])],
+                        [-np.sin(pose[2]), np.cos(pose[2])]]) + pose[:2]
+    a = mE + [[-1.0, 0.2], [-3.0, 0.1], [-6.0, 0.0], [0.5, -0.3]]
+    b = mE + [[2.0, 0.1], [-1.0, 0.3], [-1.5, 0.2], [3.0, 0.1]]
+    m = MarkingMeasurement.build(pose, vE, a, b, 0.05, margin=0.1, reach=3.0)
+    assert m.clamped.any() and not m.clamped.all()
+    r, H = m.linearise(pose)
+    np.testing.assert_allclose(r, m.residual(m.predict(pose)[0]), atol=1e-12)
+    np.testing.assert_allclose(H, m.jacobian(pose), atol=1e-12)
+
+
 def test_marking_measurement_takes_a_sigma_per_end_point():
     a, b = np.array([[0.0, 0.0], [0.0, 0.0]]), np.array([[10.0, 0.0], [10.0, 0.0]])
     pose = np.zeros(3)
