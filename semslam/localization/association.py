@@ -124,16 +124,18 @@ class LocalMap:
         return out
 
     def _tags(self, frame, pose, P, out: Associations) -> None:
+        Rv = None
         for obs in frame.tags:
-            if np.hypot(*obs.vTt[:2]) > self.cfg.tag_range_limit:
+            if math.hypot(obs.vTt[0], obs.vTt[1]) > self.cfg.tag_range_limit:
                 continue
             tag = self.tags.get((obs.family, obs.tag_id))
             if tag is None:
                 continue
-            R = np.array(obs.covariance, dtype=float)
-            Rv = rotation(pose[2]).T
+            if Rv is None:
+                Rv = rotation(pose[2]).T  # map -> vehicle
             k = self.cfg.map_covariance_scale
-            R[:2, :2] += k * Rv @ tag.covariance[:2, :2] @ Rv.T
+            R = np.array(obs.covariance, dtype=float)
+            R[:2, :2] += k * (Rv @ tag.covariance[:2, :2] @ Rv.T)
             R[2, 2] += k * tag.covariance[2, 2]
             m = TagMeasurement(np.asarray(obs.vTt, float), R, np.asarray(tag.mTt, float))
             if _d2(m, pose, P) <= self._tag_gate:
