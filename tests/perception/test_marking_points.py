@@ -96,8 +96,9 @@ def test_default_grid_is_the_mean_of_the_shipped_models(detector, views):
     assert side == 600 and pad == (0, 0)
     assert np.allclose(mean, (grids[0] + grids[1]) / 2, atol=1e-6)
     assert not np.allclose(grids[0], grids[1], atol=1e-3)  # two different models
-    pair = MarkingPointDetector([model_path(n) for n in names])
+    pair = MarkingPointDetector([model_path(n) for n in names])  # runs the two at once
     assert np.allclose(pair.grid(image)[0], mean, atol=1e-6)
+    assert np.array_equal(pair.grid(image)[0], pair.grid(image)[0])
 
 
 def test_no_model_list_is_refused():
