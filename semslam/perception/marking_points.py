@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -160,7 +159,6 @@ class MarkingPointDetector:
                 f"marking points: the models' input sizes differ {sorted(sizes)}"
             )
         self.input_size = sizes.pop()
-        self._pool: ThreadPoolExecutor | None = None  # runs the second model beside the first
 
     @staticmethod
     def _input_size(path: Path, session) -> int:
@@ -199,17 +197,12 @@ class MarkingPointDetector:
         return np.mean(self._run_all(x), axis=0), side, (top, left)
 
     def _run_all(self, x: np.ndarray) -> list[np.ndarray]:
-        """Each model's (6, G, G) grid for the input batch ``x``. The models run at the same
-        time, each on its own core (onnxruntime releases the GIL; one thread per session,
-        as two threads inside one session cost more than they gain here): the pair takes
-        about as long as one model on a 2-core machine."""
+        """Each model's (6, G, G) grid for the input batch ``x``; the second model runs
+        beside the first (:func:`onnx_model.run_beside`): on a 2-core machine the pair
+        takes about as long as one model."""
         feeds = [{name: x} for name in self._input_names]
-        if len(self._sessions) == 1:
-            return [self._sessions[0].run(None, feeds[0])[0][0]]
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(len(self._sessions) - 1, "marking-points")
         others = [
-            self._pool.submit(sess.run, None, feed)
+            onnx_model.run_beside(sess.run, None, feed)
             for sess, feed in zip(self._sessions[1:], feeds[1:], strict=True)
         ]
         first = self._sessions[0].run(None, feeds[0])[0][0]

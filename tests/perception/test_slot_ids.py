@@ -167,6 +167,9 @@ def test_shipped_model_reads_held_out_views(held_out):
     # deterministic, and read() agrees with read_patches()
     again = reader.read_patches(patches)
     assert [(r.label, r.confidence) for r in reads] == [(r.label, r.confidence) for r in again]
+    # a batch (run in two halves at once) reads each patch as it reads alone
+    alone = np.concatenate([reader.probabilities([p]) for p in patches[:5]])
+    np.testing.assert_allclose(reader.probabilities(patches[:5]), alone, atol=1e-6)
     img, e, d, _ = held_out[0]
     one = reader.read(img, e, d)
     assert one.label == reads[0].label and abs(one.confidence - reads[0].confidence) < 1e-6
