@@ -26,6 +26,7 @@ import numpy as np
 from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
 from semslam.perception import onnx_model
+from semslam.perception.beside import run_beside
 from semslam.types import JunctionShape
 
 DEFAULT_THRESHOLD = 0.7
@@ -191,18 +192,17 @@ class MarkingPointDetector:
             )
         s = self.input_size
         if side != s:
-            interp = cv2.INTER_AREA if side > s else cv2.INTER_LINEAR
-            img = cv2.resize(img, (s, s), interpolation=interp)
+            img = shrink(img, s) if side > s else cv2.resize(img, (s, s), cv2.INTER_LINEAR)
         x = np.ascontiguousarray(img)[None]
         return np.mean(self._run_all(x), axis=0), side, (top, left)
 
     def _run_all(self, x: np.ndarray) -> list[np.ndarray]:
         """Each model's (6, G, G) grid for the input batch ``x``; the second model runs
-        beside the first (:func:`onnx_model.run_beside`): on a 2-core machine the pair
+        beside the first (:mod:`semslam.perception.beside`): on a 2-core machine the pair
         takes about as long as one model."""
         feeds = [{name: x} for name in self._input_names]
         others = [
-            onnx_model.run_beside(sess.run, None, feed)
+            run_beside(sess.run, None, feed)
             for sess, feed in zip(self._sessions[1:], feeds[1:], strict=True)
         ]
         first = self._sessions[0].run(None, feeds[0])[0][0]
@@ -221,6 +221,25 @@ class MarkingPointDetector:
         return out
 
 
+def shrink(image: np.ndarray, size: int) -> np.ndarray:
+    """``cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)`` of a square image
+    larger than ``size``. When both sides are even, the top and bottom halves are resized at
+    once, one beside the other (:mod:`semslam.perception.beside`): area resampling maps
+    input row ``side / 2`` onto output row ``size / 2`` exactly, so the halves are the
+    whole, to the bit."""
+    import cv2
+
+    side = image.shape[0]
+    if side % 2 or size % 2:
+        return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
+    half = (size, size // 2)
+    bottom = run_beside(
+        cv2.resize, image[side // 2 :], half, None, 0, 0, cv2.INTER_AREA
+    )
+    top = cv2.resize(image[: side // 2], half, interpolation=cv2.INTER_AREA)
+    return np.vstack([top, bottom.result()])
+
+
 __all__ = [
     "DEFAULT_THRESHOLD",
     "NMS_RADIUS_PX",
@@ -228,4 +247,5 @@ __all__ = [
     "MarkingPointDetector",
     "check_topview",
     "decode_grid",
+    "shrink",
 ]

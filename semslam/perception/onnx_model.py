@@ -9,15 +9,10 @@ file is a :class:`~semslam.errors.PerceptionError` naming the file.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
-from typing import Any, TypeVar
 
 from semslam.errors import PerceptionError
-
-T = TypeVar("T")
 
 
 def model_path(name: str) -> Path:
@@ -50,18 +45,4 @@ def load_session(path: str | os.PathLike[str]):
         raise PerceptionError(f"{path}: not a loadable ONNX model ({first})") from None
 
 
-def run_beside(fn: Callable[..., T], *args: Any) -> Future[T]:
-    """Start ``fn(*args)`` on a second thread, kept for the purpose, and return at once.
-
-    onnxruntime releases the GIL while a session runs, so a run started here uses the
-    machine's other core while the caller runs another (one thread per session, as two
-    threads inside one session cost more than they gain on these small CNNs)."""
-    global _BESIDE
-    if _BESIDE is None:
-        _BESIDE = ThreadPoolExecutor(1, "onnx-beside")
-    return _BESIDE.submit(fn, *args)
-
-
-_BESIDE: ThreadPoolExecutor | None = None
-
-__all__ = ["load_session", "model_path", "run_beside"]
+__all__ = ["load_session", "model_path"]

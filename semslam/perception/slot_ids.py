@@ -35,6 +35,7 @@ import numpy as np
 
 from semslam.errors import PerceptionError
 from semslam.perception import onnx_model
+from semslam.perception.beside import run_beside
 
 ALPHABET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"  # class k + 1; class 0 is the CTC blank
 PATCH_HEIGHT = 64
@@ -263,7 +264,7 @@ class SlotIdReader:
         # the batch in two halves, the second beside the first: each patch is read alone,
         # so the halves give what the whole batch gives, on both cores
         half = (len(x) + 1) // 2
-        second = onnx_model.run_beside(self._session.run, None, {self._input: x[half:]})
+        second = run_beside(self._session.run, None, {self._input: x[half:]})
         first = self._session.run(None, {self._input: x[:half]})[0]
         return np.concatenate([first, second.result()[0]])
 

@@ -158,3 +158,14 @@ def test_finds_most_labelled_points(detector, views):
     assert total >= 10
     assert found >= 0.8 * total
     assert false <= max(2, 0.2 * total)
+
+
+@pytest.mark.parametrize("side, size", [(600, 256), (512, 256), (601, 256), (1000, 256)])
+def test_shrink_is_opencvs_area_resize_to_the_bit(side, size):
+    import cv2
+
+    from semslam.perception.marking_points import shrink
+
+    image = (np.random.default_rng(side).random((side, side, 3)) * 255).astype(np.uint8)
+    expected = cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
+    np.testing.assert_array_equal(shrink(image, size), expected)
