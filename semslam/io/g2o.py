@@ -28,6 +28,7 @@ round trip is bit-exact.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass, field
@@ -170,14 +171,22 @@ def information_from_upper(values: ArrayLike) -> FloatArray:
     if n is None:
         raise ValueError(f"expected 3 or 6 upper-triangle values, got {v.size}")
     m = np.zeros((n, n))
-    m[np.triu_indices(n)] = v
-    return m + np.triu(m, 1).T
+    rows, cols = _upper_indices(n)
+    m[rows, cols] = v
+    m[cols, rows] = v
+    return m
 
 
 def information_upper(information: FloatArray) -> FloatArray:
     """The upper triangle of a symmetric matrix, row by row."""
     m = np.asarray(information, dtype=float)
-    return m[np.triu_indices(m.shape[0])]
+    return m[_upper_indices(m.shape[0])]
+
+
+@functools.cache
+def _upper_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n)``, made once per size (a graph has thousands of edges)."""
+    return np.triu_indices(n)
 
 
 MAX_INFORMATION = 1e15
