@@ -10,6 +10,7 @@ threads inside one session cost more than they gain on these small CNNs.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
@@ -25,6 +26,16 @@ def run_beside(fn: Callable[..., T], *args: Any) -> Future[T]:
     if _THREAD is None:
         _THREAD = ThreadPoolExecutor(1, "semslam-beside")
     return _THREAD.submit(fn, *args)
+
+
+def _forget_thread() -> None:
+    """In a forked child: the parent's thread is not there, so a new one is made on first
+    use (the inherited executor would queue the work for a thread that never runs it)."""
+    global _THREAD
+    _THREAD = None
+
+
+os.register_at_fork(after_in_child=_forget_thread)
 
 
 __all__ = ["run_beside"]
