@@ -42,7 +42,26 @@ from semslam.types import FrameObservations, SemanticMap
 _MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-tree
 _MINUS_IDENTITY_8x2 = -np.tile(np.eye(2), (4, 1))  # d(mV - mP)/d(x, y) for four corners
 _QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])  # (d_x, d_y) @ it = (d_y, -d_x)
-_LOCAL_MAP_MARGIN = 4.0  # m: the local map of slots reaches this far beyond a frame's reach
+_LOCAL_MAP_MARGIN = 4.0  # m: a local map reaches this far beyond a frame's reach
+
+
+class _LocalBall:
+    """The local map of one kind of landmark: the KD-tree's points within a ball around
+    the car, asked for with a margin and kept while the car's reach stays inside it.
+    ``derive`` turns the ball's point indices into what the association uses (made once
+    per ball, not per frame)."""
+
+    def __init__(self, tree: cKDTree, derive) -> None:
+        self.tree, self.derive = tree, derive
+        self.centre, self.radius, self.held = (0.0, 0.0), -1.0, None
+
+    def around(self, pose: FloatArray, reach: float):
+        """``derive`` of the points within (at least) ``reach`` m of the pose."""
+        if math.hypot(pose[0] - self.centre[0], pose[1] - self.centre[1]) + reach > self.radius:
+            self.centre, self.radius = (float(pose[0]), float(pose[1])), reach + _LOCAL_MAP_MARGIN
+            idx = np.array(self.tree.query_ball_point(pose[:2], self.radius), dtype=int)
+            self.held = self.derive(np.sort(idx))
+        return self.held
 
 
 @dataclass
@@ -86,7 +105,10 @@ class LocalMap:
         self._slot_codes = np.array([self._label_codes.get(s.label, -1) for s in self.slots],
                                     dtype=int)  # -1: a slot with no label (codes read: >= -2)
         self._slot_tree = cKDTree(self.centres) if len(self.slots) else None
-        self._local_slots: tuple = (0.0, 0.0, -1.0)  # x, y, r (< 0: none), then _slots_near's
+        if self._slot_tree is not None:  # slot indices (ascending), centres, label codes
+            self._local_slots = _LocalBall(
+                self._slot_tree, lambda idx: (idx, self.centres[idx], self._slot_codes[idx])
+            )
         self.tags = {(t.family, t.tag_id): t for t in semantic_map.tags}
         self.markings = semantic_map.markings
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
@@ -103,7 +125,10 @@ class LocalMap:
             self._marking_len, 1e-9
         )[:, None]  # (M, 2) unit direction a -> b
         self._marking_n = self._marking_u @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # (-u_y, u_x)
-        self._local_markings: tuple = (0.0, 0.0, -1.0)  # x, y, r (< 0: none), markings
+        if self._marking_tree is not None:  # marking indices (ascending)
+            self._local_markings = _LocalBall(
+                self._marking_tree, lambda samples: np.unique(self._marking_owner[samples])
+            )
         self._slot_gate = chi2.ppf(cfg.slot_gate, 8)
         self._tag_gate = chi2.ppf(cfg.tag_gate, 3)
         self._marking_gates = {n: chi2.ppf(cfg.marking_gate, n) for n in range(1, 5)}
@@ -156,7 +181,7 @@ class LocalMap:
             return
         V = np.array([o.vCorners for o in frame.slots], dtype=float)  # (O, 4, 2)
         reach = self.cfg.search_radius + float(np.abs(V).max()) + 3.0
-        J, centres, codes = self._slots_near(pose, reach)
+        J, centres, codes = self._local_slots.around(pose, reach)
         if not len(J):
             out.rejected["slot"] += len(V)
             return
@@ -175,14 +200,15 @@ class LocalMap:
         sigma2 = np.array([max(o.corner_sigma, self.cfg.slot_corner_sigma_min) ** 2
                            for o in frame.slots])
         slot = J[pl]
-        d = self.corners[slot] - pose[:2]  # (p, 4, 2) map corners from the car, map frame
+        mP = self.corners[slot]  # (p, 4, 2) the pairs' map corners
+        d = mP - pose[:2]  # from the car, map frame
         H = np.empty((len(po), 8, 3))  # of the map-frame residual mV - mP
         H[:, :, :2] = _MINUS_IDENTITY_8x2
         H[:, :, 2] = (d @ _QUARTER_TURN).reshape(-1, 8)  # (d_y, -d_x) per corner
         D = self._corner_blocks[slot]  # (p, 8, 8) the pair's R: the map's corner blocks ...
         D.reshape(-1, 64)[:, ::9] += sigma2[po][:, None]  # ... and the detector's noise
         S = H @ P @ H.transpose(0, 2, 1) + D
-        r = (mV[po] - self.corners[slot]).reshape(-1, 8)
+        r = (mV[po] - mP).reshape(-1, 8)
         d2 = (r[:, None, :] @ np.linalg.solve(S, r[..., None]))[:, 0, 0]
         near_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
         label_pairs: list[list[tuple[float, int, int]]] = [[] for _ in frame.slots]
@@ -242,31 +268,6 @@ class LocalMap:
                 accepted.append((o, chosen[1], chosen[2]))
         return accepted
 
-    def _slots_near(self, pose: FloatArray, reach: float) -> tuple[FloatArray, ...]:
-        """The map slots around the pose, at least all whose centre lies within ``reach`` m:
-        their indices (ascending), centres (L, 2) and label codes (L,). The KD-tree is asked
-        for a wider ball (the local map), which serves every frame until the car's reach
-        leaves it."""
-        x0, y0, radius, *local = self._local_slots
-        if math.hypot(pose[0] - x0, pose[1] - y0) + reach > radius:
-            radius = reach + _LOCAL_MAP_MARGIN
-            idx = np.array(self._slot_tree.query_ball_point(pose[:2], radius), dtype=int)
-            local = [idx, self.centres[idx], self._slot_codes[idx]]
-            self._local_slots = (float(pose[0]), float(pose[1]), radius, *local)
-        return tuple(local)
-
-    def _markings_near(self, pose: FloatArray, reach: float) -> FloatArray:
-        """Indices (ascending) of the map markings around the pose, at least all with a
-        sample point within ``reach`` m, from a wider ball kept while the car's reach stays
-        inside it (the local map, as for slots)."""
-        x0, y0, radius, *local = self._local_markings
-        if math.hypot(pose[0] - x0, pose[1] - y0) + reach > radius:
-            radius = reach + _LOCAL_MAP_MARGIN
-            owners = self._marking_tree.query_ball_point(pose[:2], radius)
-            local = [np.unique(self._marking_owner[owners])]
-            self._local_markings = (float(pose[0]), float(pose[1]), radius, *local)
-        return local[0]
-
     def _accept(self, out: Associations, kind: str, measurement, observations: int = 1) -> None:
         out.measurements.append(measurement)
         out.kinds.append(kind)
@@ -294,7 +295,7 @@ class LocalMap:
         mE = vE @ Rm.T + pose[:2]  # (D, 2, 2) map frame
         reach = float(np.abs(vE).max()) + cfg.search_radius / 2 + _MARKING_SAMPLE
         # every (detection, local marking) pair is a candidate; the tests below sort them
-        local = self._markings_near(pose, reach)
+        local = self._local_markings.around(pose, reach)
         det = np.arange(len(vE)).repeat(len(local))
         own = np.broadcast_to(local, (len(vE), len(local))).reshape(-1)
         u, n = self._marking_u[own], self._marking_n[own]  # (pairs, 2): along, across
@@ -346,7 +347,7 @@ class LocalMap:
         # gate again the winners that got clamped rows (the others passed with these rows)
         clamped = m.clamped.reshape(-1, 2).any(axis=1)
         if clamped.any():
-            Hm, rm = m.jacobian(pose), m.residual(m.predict(pose)[0])
+            rm, Hm = m.linearise(pose)
         bounds = np.append(m.rows[0::2], len(m.z))
         good = []
         for i in range(len(w)):

@@ -94,7 +94,7 @@ class PointMeasurement(Measurement):
         if self.linearised is not None and self.linearised[0] == tuple(pose):
             return self.linearised[1], self.linearised[2]
         c, s = math.cos(pose[2] - self.turn), math.sin(pose[2] - self.turn)
-        predicted = (self.mP - pose[:2]) @ np.array([[c, -s], [s, c]])  # rows R(yaw)^T d
+        predicted = (self.mP - pose[:2]) @ np.array([[c, -s], [s, c]])  # R(yaw - turn)^T d
         H = np.empty((len(self.mP), 2, 3))  # point_jacobian, from the prediction
         H[:, :, :2] = np.array([[-c, -s], [s, -c]])
         H[:, 0, 2] = predicted[:, 1]

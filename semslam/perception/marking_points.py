@@ -232,12 +232,11 @@ def shrink(image: np.ndarray, size: int) -> np.ndarray:
     side = image.shape[0]
     if side % 2 or size % 2:
         return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
-    half = (size, size // 2)
-    bottom = run_beside(
-        cv2.resize, image[side // 2 :], half, None, 0, 0, cv2.INTER_AREA
-    )
-    top = cv2.resize(image[: side // 2], half, interpolation=cv2.INTER_AREA)
-    return np.vstack([top, bottom.result()])
+    def half(rows: np.ndarray) -> np.ndarray:
+        return cv2.resize(rows, (size, size // 2), interpolation=cv2.INTER_AREA)
+
+    bottom = run_beside(half, image[side // 2 :])
+    return np.vstack([half(image[: side // 2]), bottom.result()])
 
 
 __all__ = [
