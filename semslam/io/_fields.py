@@ -45,7 +45,7 @@ class Field:
         error: the semslam error class raised on any problem.
     """
 
-    __slots__ = ("value", "origin", "pointer", "error")
+    __slots__ = ("value", "origin", "error", "_parent", "_key")
 
     def __init__(
         self,
@@ -57,16 +57,27 @@ class Field:
         self.value = value
         self.origin = origin
         self.error = error
-        self.pointer = pointer
+        # the pointer is built only when a message needs it: readers make many fields
+        self._parent: Field | None = None
+        self._key: str | int = pointer
+
+    @property
+    def pointer(self) -> str:
+        if self._parent is None:
+            return str(self._key)
+        parent = self._parent.pointer
+        return f"{parent}/{self._key}" if parent else str(self._key)
 
     def fail(self, what: str) -> NoReturn:
         """Raise ``error("<origin>: <pointer>: <what>")``."""
-        where = f"{self.origin}: {self.pointer}" if self.pointer else self.origin
+        pointer = self.pointer
+        where = f"{self.origin}: {pointer}" if pointer else self.origin
         raise self.error(f"{where}: {what}")
 
     def _child(self, key: str | int) -> Field:
-        pointer = f"{self.pointer}/{key}" if self.pointer else str(key)
-        return Field(self.value[key], self.origin, self.error, pointer)
+        child = Field(self.value[key], self.origin, self.error)
+        child._parent, child._key = self, key
+        return child
 
     # ------------------------------------------------------------------ containers
 
@@ -160,7 +171,9 @@ class Field:
     def array(self, shape: tuple[int | None, ...]) -> FloatArray:
         """A nested array of finite numbers of ``shape``; only the first axis may be
         None (any length), so an empty array gets the right trailing shape."""
-        a = np.array(self._nested(shape), dtype=float)
+        a = _plain_array(self.value, shape)
+        if a is None:  # something is wrong: the element-wise walk names it
+            a = np.array(self._nested(shape), dtype=float)
         if a.size == 0:
             a = a.reshape(tuple(0 if n is None else n for n in shape))
         return a
@@ -173,6 +186,37 @@ class Field:
         if n is not None and len(elements) != n:
             self.fail(f"expected {n} {_element_name(shape)}, got {len(elements)}")
         return [e._nested(shape[1:]) for e in elements]
+
+
+def _plain_array(value: Any, shape: tuple[int | None, ...]) -> FloatArray | None:
+    """The array when ``value`` is nested lists of ``shape`` holding finite ints and
+    floats only (not bools), else None; builds no pointer, so it is the fast path."""
+    if _plain_numbers(value, shape) is None:
+        return None
+    try:
+        a = np.array(value, dtype=float)
+    except OverflowError:  # an integer beyond float
+        return None
+    return a if np.isfinite(a).all() else None
+
+
+def _plain_numbers(value: Any, shape: tuple[int | None, ...]) -> Any:
+    """``value`` when it is nested lists of ``shape`` holding only ints and floats (not
+    bools), else None: the fast path of :meth:`Field.array`, with no pointer built."""
+    if not shape:
+        return value if type(value) is float or type(value) is int else None
+    n = shape[0]
+    if type(value) is not list or (n is not None and len(value) != n):
+        return None
+    if len(shape) == 1:
+        for v in value:
+            if type(v) is not float and type(v) is not int:
+                return None
+        return value
+    for v in value:
+        if _plain_numbers(v, shape[1:]) is None:
+            return None
+    return value
 
 
 def _element_name(shape: tuple[int | None, ...]) -> str:

@@ -11,6 +11,7 @@ import datetime
 import json
 import math
 import os
+import re
 from collections.abc import Iterator
 from enum import Enum
 from typing import Any
@@ -55,6 +56,23 @@ def find_non_finite(value: Any, pointer: str = "") -> tuple[str, float] | None:
         if isinstance(item, float) and not math.isfinite(item):
             return path, item
     return None
+
+
+_BIG_EXPONENT = re.compile(r"[eE]\+?\d{3}")
+
+
+def may_hold_non_finite(text: str) -> bool:
+    """Whether ``json.loads(text)`` can give a NaN or an infinite number that
+    :func:`find_non_finite` should name.
+
+    Python's ``json`` gives them for the tokens ``NaN``, ``Infinity`` and
+    ``-Infinity`` and for floats beyond the double range: an exponent of three
+    digits, or a plain mantissa of over 308 digits. That last form is not looked
+    for (the search costs more than the parse); the typed readers refuse any
+    non-finite number they read (``Field.number``, ``Field.array``). False
+    positives (such a word inside a string) only cost the walk.
+    """
+    return "NaN" in text or "Infinity" in text or _BIG_EXPONENT.search(text) is not None
 
 
 def non_finite_message(pointer: str, number: float) -> str:

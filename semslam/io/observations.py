@@ -23,7 +23,12 @@ import numpy as np
 
 from semslam.errors import FormatError
 from semslam.io._fields import Field
-from semslam.io._json import find_non_finite, first_line, non_finite_message
+from semslam.io._json import (
+    find_non_finite,
+    first_line,
+    may_hold_non_finite,
+    non_finite_message,
+)
 from semslam.io._rows import check_time_order
 from semslam.io._tag import tag_fields, tag_to_dict
 from semslam.io._text import read_text
@@ -47,18 +52,23 @@ def frame_observations_to_dict(frame: FrameObservations) -> dict[str, Any]:
     }
 
 
-def frame_observations_from_dict(document: Any, source: str = "<dict>") -> FrameObservations:
+def frame_observations_from_dict(
+    document: Any, source: str = "<dict>", scan_non_finite: bool = True
+) -> FrameObservations:
     """One frame from its JSON object.
 
     Args:
         document: the parsed JSON object.
         source: where it came from, for messages (``"obs.jsonl line 4"``).
+        scan_non_finite: look for NaN/infinity anywhere in ``document`` first (so the
+            message names it whatever else is wrong); False when its text was seen to
+            hold none (:func:`~semslam.io._json.may_hold_non_finite`).
 
     Raises:
         FormatError: a missing or mistyped field, NaN/infinity, a value out of
             range; the message names ``source`` and the field (``slots/0/corners``).
     """
-    bad = find_non_finite(document)
+    bad = find_non_finite(document) if scan_non_finite else None
     if bad is not None:
         raise FormatError(f"{source}: {non_finite_message(*bad)}")
     root = Field(document, source, FormatError)
@@ -110,7 +120,7 @@ def read_observations(path: str | os.PathLike[str]) -> list[FrameObservations]:
             raise FormatError(f"{where}: not valid JSON at column {exc.colno}: {exc.msg}") from None
         except (ValueError, RecursionError) as exc:
             raise FormatError(f"{where}: not valid JSON: {first_line(exc)}") from None
-        frame = frame_observations_from_dict(document, where)
+        frame = frame_observations_from_dict(document, where, may_hold_non_finite(line))
         check_time_order(frames[-1].t if frames else None, frame.t, where, FormatError)
         frames.append(frame)
     return frames

@@ -144,6 +144,26 @@ def _write(path: Path, documents: list[dict]) -> None:
             lambda d: d["markings"][0].update(a=[1.0, float("nan")]),
             r"line 3: markings/0/a/1: NaN is not allowed",
         ),
+        (  # NaN in a field no reader looks at: found by the scan of the line's text
+            lambda d: d["markings"][0].update(note=[float("nan")]),
+            r"line 3: markings/0/note/0: NaN is not allowed",
+        ),
+        (
+            lambda d: d["slots"][0]["corners"][2].__setitem__(0, float("-inf")),
+            r"line 3: slots/0/corners/2/0: -Infinity is not allowed",
+        ),
+        (  # true is 1 to numpy, not a number here
+            lambda d: d["markings"][0].update(b=[True, 1.0]),
+            r"line 3: markings/0/b/0: expected a number, got true/false",
+        ),
+        (
+            lambda d: d["markings"][0].update(b=[10**400, 1.0]),
+            r"line 3: markings/0/b/0: number too large",
+        ),
+        (
+            lambda d: d["markings"][0].update(b=[[1.0], 1.0]),
+            r"line 3: markings/0/b/0: expected a number, got an array",
+        ),
         (
             lambda d: d["markings"][0].update(sigma=-0.1),
             r"line 3: markings/0/sigma: must be > 0",
@@ -158,6 +178,16 @@ def test_rejects(tmp_path: Path, mutate, message: str) -> None:
     path = tmp_path / "obs.jsonl"
     _write(path, documents)
     with pytest.raises(FormatError, match=message):
+        read_observations(path)
+
+
+def test_overflowing_exponent_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "obs.jsonl"
+    _write(path, _lines())
+    text = path.read_text().splitlines()
+    text[1] = text[1].replace('"t": 0.1', '"t": 1e999', 1)
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(FormatError, match=r"obs\.jsonl line 2: t: Infinity is not allowed"):
         read_observations(path)
 
 
@@ -192,3 +222,20 @@ def test_writer_refuses_unordered_or_broken_frames(tmp_path: Path) -> None:
     ):
         write_observations(path, [bad])
     assert not path.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ('{"t": 0.1, "a": [1.5e-07, 2E+30]}', False),
+        ('{"t": NaN}', True),
+        ('{"t": -Infinity}', True),
+        ('{"t": 1e999}', True),
+        ('{"t": 1E+308}', True),
+        ('{"label": "NaN"}', True),  # a false alarm costs only the walk
+    ],
+)
+def test_which_lines_need_the_non_finite_walk(text: str, expected: bool) -> None:
+    from semslam.io._json import may_hold_non_finite
+
+    assert may_hold_non_finite(text) is expected
