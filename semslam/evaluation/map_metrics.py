@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -191,7 +190,7 @@ def _assign(n_est: int, ei: IntArray, tj: IntArray, cost: FloatArray) -> IntArra
         matrix[r_inv, c_inv] = cost[group]
         pair_of = np.full((len(rows), len(cols)), -1, dtype=np.intp)
         pair_of[r_inv, c_inv] = group
-        r, c = linear_sum_assignment(matrix)
+        r, c = _min_cost_assignment(matrix)
         picked = pair_of[r, c]
         chosen.append(picked[picked >= 0])
     return np.concatenate(chosen)
@@ -237,7 +236,7 @@ def _match_tags(est: Sequence[Tag], true: Sequence[Tag]) -> list[tuple[int, int]
             continue
         a = np.array([est[i].mTt[:2] for i in ei], dtype=float)
         b = np.array([true[j].mTt[:2] for j in tj], dtype=float)
-        r, c = linear_sum_assignment(np.linalg.norm(a[:, None] - b[None], axis=2))
+        r, c = _min_cost_assignment(np.linalg.norm(a[:, None] - b[None], axis=2))
         pairs.extend((ei[x], tj[y]) for x, y in zip(r, c, strict=True))
     return sorted(pairs)
 
@@ -484,3 +483,14 @@ def _marking_metrics(estimate: SemanticMap, truth: SemanticMap) -> dict[str, Any
         "marking_endpoint_median_m": _percentile(dist, 50.0),
         "marking_endpoint_p95_m": _percentile(dist, 95.0),
     }
+
+
+def _min_cost_assignment(cost: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Rows and columns of the minimum-cost assignment (scipy's ``linear_sum_assignment``).
+
+    Imported here, not at the top: ``scipy.optimize`` takes about half a second to
+    import, and the mapper and localizer, which load this package for ``fit_se2``, never
+    assign."""
+    from scipy.optimize import linear_sum_assignment
+
+    return linear_sum_assignment(cost)

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2
 
+from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
 from semslam.geometry import FloatArray, rotation
 from semslam.localization.filter import solve_spd
@@ -129,9 +129,9 @@ class LocalMap:
             self._local_markings = _LocalBall(
                 self._marking_tree, lambda samples: np.unique(self._marking_owner[samples])
             )
-        self._slot_gate = chi2.ppf(cfg.slot_gate, 8)
-        self._tag_gate = chi2.ppf(cfg.tag_gate, 3)
-        self._marking_gates = {n: chi2.ppf(cfg.marking_gate, n) for n in range(1, 5)}
+        self._slot_gate = chi2_quantile(cfg.slot_gate, 8)
+        self._tag_gate = chi2_quantile(cfg.tag_gate, 3)
+        self._marking_gates = {n: chi2_quantile(cfg.marking_gate, n) for n in range(1, 5)}
 
     # ------------------------------------------------------------------ frame
     def associate(self, frame: FrameObservations, pose: FloatArray, P: FloatArray) -> Associations:

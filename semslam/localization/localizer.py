@@ -32,8 +32,8 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2
 
+from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
 from semslam.errors import DriveError
 from semslam.geometry import FloatArray, wrap_angle
@@ -51,7 +51,7 @@ from semslam.localization.relocalize import Relocalizer
 from semslam.motion import ctrv_predict
 from semslam.types import FrameObservations, SemanticMap
 
-_PLAUSIBLE_CHI2 = float(chi2.ppf(0.99999, 3))  # a global fix this far from the filter: a jump
+_PLAUSIBLE_CHI2 = float(chi2_quantile(0.99999, 3))  # a global fix this far from the filter: a jump
 
 INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
     "initializing", "tracking", "coasting", "lost", "relocalized"
@@ -226,7 +226,7 @@ class Localizer:
 
     def _frame_gate(self, dof: int) -> float:
         if dof not in self._frame_gates:
-            self._frame_gates[dof] = chi2.ppf(self.cfg.frame_gate, dof)
+            self._frame_gates[dof] = chi2_quantile(self.cfg.frame_gate, dof)
         return self._frame_gates[dof]
 
     def _contradicted(self, frame: FrameObservations) -> bool:

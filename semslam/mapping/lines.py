@@ -69,7 +69,7 @@ class LineLandmark:
         self.s_min, self.s_max = min(self.s_min, float(s.min())), max(self.s_max, float(s.max()))
 
 
-_CELL = 10.0  # m, side of a grid cell of LineLandmarks
+_CELL = 4.0  # m, side of a grid cell of LineLandmarks (10 m: association 10 % slower, same map)
 
 
 def _cell_range(lo: FloatArray, hi: FloatArray) -> tuple[int, int, int, int]:

@@ -75,8 +75,8 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
+from semslam.chi2 import chi2_quantile
 from semslam.errors import MappingError
 from semslam.geometry import FloatArray
 from semslam.io.g2o import Edge2D, PointEdge2D, PoseGraph2D
@@ -480,7 +480,7 @@ class _Solver:
         if self.gate_probability is None:
             return math.inf
         if dof not in self._gates:
-            self._gates[dof] = float(chi2_distribution.ppf(self.gate_probability, dof))
+            self._gates[dof] = float(chi2_quantile(self.gate_probability, dof))
         return self._gates[dof]
 
     def _admit(self, mix: CompiledMixture, values, marginals) -> dict[int, float]:
