@@ -51,7 +51,7 @@ from semslam.localization.relocalize import Relocalizer
 from semslam.motion import ctrv_predict
 from semslam.types import FrameObservations, SemanticMap
 
-_PLAUSIBLE_CHI2 = float(chi2_quantile(0.99999, 3))  # a global fix this far from the filter: a jump
+_PLAUSIBLE_CHI2 = chi2_quantile(0.99999, 3)  # a global fix this far from the filter: a jump
 
 INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
     "initializing", "tracking", "coasting", "lost", "relocalized"

@@ -480,7 +480,7 @@ class _Solver:
         if self.gate_probability is None:
             return math.inf
         if dof not in self._gates:
-            self._gates[dof] = float(chi2_quantile(self.gate_probability, dof))
+            self._gates[dof] = chi2_quantile(self.gate_probability, dof)
         return self._gates[dof]
 
     def _admit(self, mix: CompiledMixture, values, marginals) -> dict[int, float]:
