@@ -129,14 +129,21 @@ class MappingConfig(_Section):
     )
     keyframe_distance: float = Field(0.5, gt=0, description="m between keyframes")
     keyframe_angle_deg: float = Field(5.0, gt=0)
-    update_every: int = Field(5, ge=1, description="keyframes between iSAM2 updates")
+    update_every: int = Field(
+        10,
+        ge=1,
+        description="keyframes between iSAM2 updates (5 took 25-50 % more iSAM2 time on "
+        "`garage`, the same maps; BENCHMARKS.md)",
+    )
     relinearize_threshold: float = Field(
         0.3,
         gt=0,
         description="iSAM2: relinearise a variable whose step exceeds this (m or rad); on "
         "`large` 0.4 and above let association go wrong after long loops (BENCHMARKS.md)",
     )
-    relinearize_skip: int = Field(10, ge=1, description="iSAM2: updates between relinearisations")
+    relinearize_skip: int = Field(
+        5, ge=1, description="iSAM2: updates between relinearisations (every 50 keyframes)"
+    )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
         1e-5, gt=0, description="final LM stops when the error improves by less than this"

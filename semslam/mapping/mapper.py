@@ -226,8 +226,8 @@ class Mapper:
         return True
 
     def _update_due(self) -> bool:
-        """Every ``update_every`` keyframes (20 instead of 5 cost less on `large` but broke
-        its map: BENCHMARKS.md)."""
+        """Every ``update_every`` keyframes (10, relinearising every 5th update; 20 cost
+        less on `large` but broke its map: BENCHMARKS.md)."""
         return len(self.keyframe_times) - 1 - self._last_update >= self.cfg.update_every
 
     def _add_keyframe(self, t: float, pose: FloatArray, odometry) -> None:
