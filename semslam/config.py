@@ -133,7 +133,7 @@ class MappingConfig(_Section):
         10,
         ge=1,
         description="keyframes between iSAM2 updates (5 took 25-50 % more iSAM2 time on "
-        "`garage`, the same maps; BENCHMARKS.md)",
+        "`garage`, maps within 1 mm; BENCHMARKS.md)",
     )
     relinearize_threshold: float = Field(
         0.3,
@@ -142,7 +142,8 @@ class MappingConfig(_Section):
         "`large` 0.4 and above let association go wrong after long loops (BENCHMARKS.md)",
     )
     relinearize_skip: int = Field(
-        5, ge=1, description="iSAM2: updates between relinearisations (every 50 keyframes)"
+        5, ge=1, description="iSAM2: updates between relinearisations (x update_every: 50 "
+        "keyframes)"
     )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
