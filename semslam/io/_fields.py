@@ -191,7 +191,7 @@ class Field:
 def _plain_array(value: Any, shape: tuple[int | None, ...]) -> FloatArray | None:
     """The array when ``value`` is nested lists of ``shape`` holding finite ints and
     floats only (not bools), else None; builds no pointer, so it is the fast path."""
-    if _plain_numbers(value, shape) is None:
+    if not _plain_numbers(value, shape):
         return None
     try:
         a = np.array(value, dtype=float)
@@ -200,23 +200,15 @@ def _plain_array(value: Any, shape: tuple[int | None, ...]) -> FloatArray | None
     return a if np.isfinite(a).all() else None
 
 
-def _plain_numbers(value: Any, shape: tuple[int | None, ...]) -> Any:
-    """``value`` when it is nested lists of ``shape`` holding only ints and floats (not
-    bools), else None: the fast path of :meth:`Field.array`, with no pointer built."""
+def _plain_numbers(value: Any, shape: tuple[int | None, ...]) -> bool:
+    """Whether ``value`` is nested lists of ``shape`` holding only ints and floats (a bool
+    is neither here, as in :meth:`Field.number`)."""
     if not shape:
-        return value if type(value) is float or type(value) is int else None
+        return type(value) is float or type(value) is int
     n = shape[0]
     if type(value) is not list or (n is not None and len(value) != n):
-        return None
-    if len(shape) == 1:
-        for v in value:
-            if type(v) is not float and type(v) is not int:
-                return None
-        return value
-    for v in value:
-        if _plain_numbers(v, shape[1:]) is None:
-            return None
-    return value
+        return False
+    return all(_plain_numbers(v, shape[1:]) for v in value)
 
 
 def _element_name(shape: tuple[int | None, ...]) -> str:
