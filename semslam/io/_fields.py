@@ -9,6 +9,7 @@ Field paths are JSON pointers without the leading slash.
 from __future__ import annotations
 
 import math
+import sys
 from enum import Enum
 from typing import Any, NoReturn, TypeVar
 
@@ -168,12 +169,17 @@ class Field:
 
     # ------------------------------------------------------------------ arrays
 
-    def array(self, shape: tuple[int | None, ...]) -> FloatArray:
-        """A nested array of finite numbers of ``shape``; only the first axis may be
-        None (any length), so an empty array gets the right trailing shape."""
-        a = _plain_array(self.value, shape)
+    def array(self, shape: tuple[int | None, ...], within: float = math.inf) -> FloatArray:
+        """A nested array of finite numbers of ``shape``, each at most ``within`` in
+        magnitude; only the first axis may be None (any length), so an empty array gets
+        the right trailing shape."""
+        a = _plain_array(self.value, shape, within)
         if a is None:  # something is wrong: the element-wise walk names it
             a = np.array(self._nested(shape), dtype=float)
+            big = np.flatnonzero(np.abs(a.reshape(-1)) > within)
+            if big.size:
+                value = float(a.reshape(-1)[big[0]])
+                self.fail(f"{value:g} is out of range (|value| <= {within:g})")
         if a.size == 0:
             a = a.reshape(tuple(0 if n is None else n for n in shape))
         return a
@@ -188,16 +194,42 @@ class Field:
         return [e._nested(shape[1:]) for e in elements]
 
 
-def _plain_array(value: Any, shape: tuple[int | None, ...]) -> FloatArray | None:
+def check_covariance(f: Field, covariance: FloatArray, bound: float) -> None:
+    """Refuse (naming ``f``) a covariance that is not symmetric positive semi-definite to
+    rounding, or has an entry beyond ``bound`` (a broken file; the filters would overflow)."""
+    c = np.asarray(covariance, dtype=float)
+    scale = max(float(np.max(np.abs(c))), 1e-300)
+    if scale > bound:
+        f.fail(f"covariance entry {scale:g} is out of range (|entry| <= {bound:g})")
+    if np.max(np.abs(c - c.T)) > 1e-9 * scale:
+        f.fail("not symmetric")
+    if float(np.linalg.eigvalsh(0.5 * (c + c.T))[0]) < -1e-9 * scale:
+        f.fail("not positive semi-definite")
+
+
+_FLOAT_MAX = sys.float_info.max
+
+
+def _plain_array(
+    value: Any, shape: tuple[int | None, ...], within: float = math.inf
+) -> FloatArray | None:
     """The array when ``value`` is nested lists of ``shape`` holding finite ints and
-    floats only (not bools), else None; builds no pointer, so it is the fast path."""
+    floats only (not bools), none beyond ``within`` in magnitude, else None; builds no
+    pointer, so it is the fast path."""
+    if shape == (2,) and type(value) is list and len(value) == 2:  # a point, checked in floats
+        bound = min(within, _FLOAT_MAX)  # NaN, infinity and huge ints fail the comparison
+        x, y = value
+        plain = _plain_numbers(x, ()) and _plain_numbers(y, ())
+        return np.array(value, dtype=float) if plain and abs(x) <= bound and abs(y) <= bound else None
     if not _plain_numbers(value, shape):
         return None
     try:
         a = np.array(value, dtype=float)
     except OverflowError:  # an integer beyond float
         return None
-    return a if np.isfinite(a).all() else None
+    if within == math.inf:
+        return a if np.isfinite(a).all() else None
+    return a if (np.abs(a) <= within).all() else None  # NaN and infinity fail too
 
 
 def _plain_numbers(value: Any, shape: tuple[int | None, ...]) -> bool:

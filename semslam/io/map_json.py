@@ -14,8 +14,8 @@ Layout (map frame, metres and radians)::
 Every load checks, in order: JSON syntax, finite numbers, the format
 string, the version, the schema, unique slot IDs, then the values: every
 coordinate within :data:`MAX_COORDINATE` of the origin, covariances symmetric
-positive semi-definite, markings of non-zero length, each tag (family, id)
-once. Each failure is a :class:`~semslam.errors.MapError` naming the file and
+positive semi-definite with no entry beyond :data:`MAX_VARIANCE`, markings of
+non-zero length, each tag (family, id) once. Each failure is a :class:`~semslam.errors.MapError` naming the file and
 the field (``map.json: slots/0/corner_covariances/0: not positive semi-definite``).
 """
 
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from semslam.errors import MapError
-from semslam.io._fields import Field
+from semslam.io._fields import Field, check_covariance
 from semslam.io._json import (
     dumps_pretty,
     find_non_finite,
@@ -46,6 +46,10 @@ MAP_VERSION = 1
 
 MAX_COORDINATE = 1e6
 """Largest ``|x|`` or ``|y|`` of a map coordinate, metres (1000 km: beyond it, a broken file)."""
+
+MAX_VARIANCE = MAX_COORDINATE**2
+"""Largest ``|entry|`` of a covariance (m^2, rad^2 or m rad): a sigma of 1000 km. Beyond it a
+file is broken, and the filter's arithmetic would overflow."""
 
 
 def map_to_dict(semantic_map: SemanticMap) -> dict[str, Any]:
@@ -113,16 +117,6 @@ def _check_coordinates(f: Field, points: np.ndarray) -> None:
         f.fail(f"coordinate {value:g} m is out of range (|x|, |y| <= {MAX_COORDINATE:g} m)")
 
 
-def _check_covariance(f: Field, covariance: np.ndarray) -> None:
-    """Refuse a covariance that is not symmetric positive semi-definite (to rounding)."""
-    c = np.asarray(covariance, dtype=float)
-    scale = max(float(np.max(np.abs(c))), 1e-300)
-    if np.max(np.abs(c - c.T)) > 1e-9 * scale:
-        f.fail("not symmetric")
-    if float(np.linalg.eigvalsh(0.5 * (c + c.T))[0]) < -1e-9 * scale:
-        f.fail("not positive semi-definite")
-
-
 def check_map_document(document: Any, source: str = "<dict>") -> None:
     """Check a map document without building the map (see :func:`map_from_dict`)."""
     if not isinstance(document, dict):
@@ -186,7 +180,7 @@ def _slot_from_field(f: Field) -> Slot:
     _check_coordinates(f["corners"], corners)
     covariances = f["corner_covariances"].array((4, 2, 2))
     for j, field in enumerate(f["corner_covariances"].items()):
-        _check_covariance(field, covariances[j])
+        check_covariance(field, covariances[j], MAX_VARIANCE)
     return Slot(
         id=f["id"].integer(),
         label=f["label"].optional_string(),
@@ -195,7 +189,9 @@ def _slot_from_field(f: Field) -> Slot:
         corner_covariances=covariances,
         kind=f["kind"].choice(SlotKind),
         observations=f["observations"].integer(0),
-        heading_variance=None if (h := f.get("heading_variance")) is None else h.number(0.0),
+        heading_variance=(
+            None if (h := f.get("heading_variance")) is None else h.number(0.0, MAX_VARIANCE)
+        ),
     )
 
 
@@ -206,7 +202,7 @@ def _tag_to_dict(tag: Tag) -> dict[str, Any]:
 def _tag_from_field(f: Field) -> Tag:
     parts = tag_fields(f)
     _check_coordinates(f, parts["pose"][:2])
-    _check_covariance(f["covariance"], parts["covariance"])
+    check_covariance(f["covariance"], parts["covariance"], MAX_VARIANCE)
     return Tag(mTt=parts.pop("pose"), **parts)
 
 

@@ -9,7 +9,9 @@ Everything is in the vehicle frame (x forward, y left), metres and radians::
      "markings": [{"a": [x, y], "b": [x, y], "width", "confidence", "sigma" (optional)}]}
 
 Missing ``slots``/``tags``/``markings`` lists mean none were seen. Times
-strictly increase from line to line.
+strictly increase from line to line. Points, sigmas and widths are within
+:data:`MAX_RANGE` of the vehicle, tag covariances symmetric positive
+semi-definite.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from semslam.errors import FormatError
-from semslam.io._fields import Field
+from semslam.io._fields import Field, check_covariance
 from semslam.io._json import (
     find_non_finite,
     first_line,
@@ -40,6 +42,10 @@ from semslam.types import (
     SlotObservation,
     TagObservation,
 )
+
+MAX_RANGE = 1000.0
+"""Largest ``|x|``, ``|y|``, sigma or width of an observation, metres. The sensors see tens of
+metres; beyond a kilometre the file is broken, and the filters' squares would overflow."""
 
 
 def frame_observations_to_dict(frame: FrameObservations) -> dict[str, Any]:
@@ -148,12 +154,12 @@ def _slot_to_dict(slot: SlotObservation) -> dict[str, Any]:
 def _slot_from_field(f: Field) -> SlotObservation:
     label = f.get("label")
     return SlotObservation(
-        vCorners=f["corners"].array((4, 2)),
+        vCorners=f["corners"].array((4, 2), within=MAX_RANGE),
         kind=f["kind"].choice(SlotKind),
         label=None if label is None else label.string(),
         label_confidence=f["label_confidence"].number(0.0, 1.0),
         confidence=f["confidence"].number(0.0, 1.0),
-        corner_sigma=f["corner_sigma"].number(minimum=0.0),
+        corner_sigma=f["corner_sigma"].number(0.0, MAX_RANGE),
     )
 
 
@@ -163,6 +169,9 @@ def _tag_to_dict(tag: TagObservation) -> dict[str, Any]:
 
 def _tag_from_field(f: Field) -> TagObservation:
     parts = tag_fields(f)
+    for key in ("x", "y"):
+        f[key].number(-MAX_RANGE, MAX_RANGE)
+    check_covariance(f["covariance"], parts["covariance"], MAX_RANGE**2)
     return TagObservation(vTt=parts.pop("pose"), **parts)
 
 
@@ -179,10 +188,11 @@ def _marking_to_dict(marking: MarkingObservation) -> dict[str, Any]:
 
 
 def _marking_from_field(f: Field) -> MarkingObservation:
+    sigma = f.get("sigma")
     return MarkingObservation(
-        vA=f["a"].array((2,)),
-        vB=f["b"].array((2,)),
-        width=f["width"].number(positive=True),
+        vA=f["a"].array((2,), within=MAX_RANGE),
+        vB=f["b"].array((2,), within=MAX_RANGE),
+        width=f["width"].number(maximum=MAX_RANGE, positive=True),
         confidence=f["confidence"].number(0.0, 1.0),
-        sigma=sigma.number(positive=True) if (sigma := f.get("sigma")) is not None else None,
+        sigma=None if sigma is None else sigma.number(maximum=MAX_RANGE, positive=True),
     )

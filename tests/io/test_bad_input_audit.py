@@ -97,6 +97,18 @@ def _map_document() -> dict:
             ("tags/0/covariance", "not positive semi-definite"),
         ),
         (
+            lambda d: d["slots"][0]["corner_covariances"][1][0].__setitem__(0, 1e308),
+            ("slots/0/corner_covariances/1", "out of range"),
+        ),
+        (
+            lambda d: d["tags"][0].__setitem__("covariance", (1e13 * np.eye(3)).tolist()),
+            ("tags/0/covariance", "out of range"),
+        ),
+        (
+            lambda d: d["slots"][0].__setitem__("heading_variance", 1e300),
+            ("slots/0/heading_variance", "must be <="),
+        ),
+        (
             lambda d: d["slots"][0]["corners"][2].__setitem__(0, 1e300),
             ("slots/0/corners", "out of range"),
         ),

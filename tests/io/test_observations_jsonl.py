@@ -24,13 +24,17 @@ from semslam.types import (
 )
 
 real = st.floats(-1e6, 1e6, allow_nan=False)
+metres = st.floats(-1e3, 1e3, allow_nan=False)  # an observation's reach (MAX_RANGE)
 unit = st.floats(0.0, 1.0)
 positive = st.floats(1e-6, 1e3)
 
 
-def arrays(shape: tuple[int, ...]) -> st.SearchStrategy[np.ndarray]:
+def arrays(shape: tuple[int, ...], values=metres) -> st.SearchStrategy[np.ndarray]:
     n = int(np.prod(shape))
-    return st.lists(real, min_size=n, max_size=n).map(lambda v: np.array(v).reshape(shape))
+    return st.lists(values, min_size=n, max_size=n).map(lambda v: np.array(v).reshape(shape))
+
+
+covariances = arrays((3, 3), st.floats(-10.0, 10.0)).map(lambda a: a @ a.T)  # PSD
 
 
 slots = st.builds(
@@ -47,9 +51,9 @@ tags = st.builds(
     family=st.sampled_from(TagFamily),
     tag_id=st.integers(0, 10**6),
     size=positive,
-    vTt=arrays((3,)),
+    vTt=st.tuples(metres, metres, real).map(np.array),
     height=real,
-    covariance=arrays((3, 3)),
+    covariance=covariances,
 )
 markings = st.builds(
     MarkingObservation,
@@ -167,6 +171,31 @@ def _write(path: Path, documents: list[dict]) -> None:
         (
             lambda d: d["markings"][0].update(sigma=-0.1),
             r"line 3: markings/0/sigma: must be > 0",
+        ),
+        (  # finite but absurd: a broken file, and the filters' squares would overflow
+            lambda d: d["slots"][0]["corners"][1].__setitem__(1, -1e300),
+            r"line 3: slots/0/corners: -1e\+300 is out of range \(\|value\| <= 1000\)",
+        ),
+        (
+            lambda d: d["markings"][0].update(a=[2.0, 5e3]),
+            r"line 3: markings/0/a: 5000 is out of range",
+        ),
+        (
+            lambda d: d["markings"][0].update(width=1e300),
+            r"line 3: markings/0/width: must be <= 1000\.0",
+        ),
+        (
+            lambda d: d["slots"][0].update(corner_sigma=1e200),
+            r"line 3: slots/0/corner_sigma: must be <= 1000\.0",
+        ),
+        (lambda d: d["tags"][0].update(y=-2e3), r"line 3: tags/0/y: must be >= -1000\.0"),
+        (
+            lambda d: d["tags"][0].update(covariance=[[1, 0, 0], [0, -1, 0], [0, 0, 1]]),
+            r"line 3: tags/0/covariance: not positive semi-definite",
+        ),
+        (
+            lambda d: d["tags"][0].update(covariance=[[1e300, 0, 0], [0, 1, 0], [0, 0, 1]]),
+            r"line 3: tags/0/covariance: covariance entry 1e\+300 is out of range",
         ),
         (lambda d: d.update(t=0.05), r"line 3: time goes backwards \(0\.050 after 0\.100\)"),
         (lambda d: d.pop("t"), r"line 3: missing field 't'"),
