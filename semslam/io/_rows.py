@@ -47,12 +47,14 @@ def check_time_order(
 
 
 def format_time(t: float) -> str:
-    """A time stamp in seconds with three decimals."""
-    return f"{t:.3f}"
+    """A time stamp in seconds with three decimals (in ``%g`` form from 1e12 s on)."""
+    return f"{t:.3f}" if abs(t) < 1e12 else f"{t:g}"
 
 
 def _distinct(a: float, b: float) -> tuple[str, str]:
     """``a`` and ``b`` printed with the fewest decimals (at least 3) that tell them apart."""
+    if max(abs(a), abs(b)) >= 1e12:  # no decimals to count: %g, then every digit
+        return (f"{a:g}", f"{b:g}") if f"{a:g}" != f"{b:g}" else (repr(a), repr(b))
     for decimals in range(3, 10):
         sa, sb = f"{a:.{decimals}f}", f"{b:.{decimals}f}"
         if sa != sb:

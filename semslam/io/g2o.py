@@ -198,6 +198,10 @@ MIN_INFORMATION = 1e-12
 MAX_CONDITION = 1e12
 """Largest condition number of an information matrix a solver can use reliably."""
 
+MAX_VALUE = 1e6
+"""Largest ``|x|``, ``|y|`` (m) or ``|yaw|`` (rad) of a vertex or a measurement: beyond
+1000 km a file is broken (the solvers would lose every digit of it)."""
+
 
 def information_problem(m: FloatArray) -> str | None:
     """Why an information matrix cannot be solved with, or None when it can: not positive
@@ -252,6 +256,14 @@ class _Tokens:
     def numbers(self, names: tuple[str, ...]) -> FloatArray:
         return np.array([self.number(n) for n in names])
 
+    def values(self, names: tuple[str, ...]) -> FloatArray:
+        """Numbers of a pose, point or measurement, each within :data:`MAX_VALUE`."""
+        values = self.numbers(names)
+        for name, value in zip(names, values, strict=True):
+            if abs(value) > MAX_VALUE:
+                raise self.fail(f"{name} {value:g} is out of range (|{name}| <= {MAX_VALUE:g})")
+        return values
+
     def information(self, names: tuple[str, ...], what: str) -> FloatArray:
         info = information_from_upper(self.numbers(names))
         problem = information_problem(info)
@@ -278,7 +290,7 @@ def _read_edge(t: _Tokens, what: str = "edge") -> Edge2D:
     b = t.integer("b")
     if a == b:
         raise t.fail(f"{what} joins vertex {a} to itself")
-    measurement = t.numbers(("x", "y", "yaw"))
+    measurement = t.values(("x", "y", "yaw"))
     return Edge2D(a, b, measurement, t.information(_SE2_INFO, what))
 
 
@@ -305,13 +317,13 @@ def parse_g2o(text: str, name: str = "<g2o>") -> PoseGraph2D:
             _expect(tokens, len(_FORMS[tag].split()), where, _FORMS[tag])
         if tag == VERTEX_SE2:
             vid = t.integer("id")
-            value = t.numbers(("x", "y", "yaw"))
+            value = t.values(("x", "y", "yaw"))
             if vid in graph.vertices or vid in graph.points:
                 raise t.fail(f"vertex {vid} defined twice")
             graph.vertices[vid] = value
         elif tag == VERTEX_XY:
             vid = t.integer("id")
-            value = t.numbers(("x", "y"))
+            value = t.values(("x", "y"))
             if vid in graph.vertices or vid in graph.points:
                 raise t.fail(f"vertex {vid} defined twice")
             graph.points[vid] = value
@@ -322,7 +334,7 @@ def parse_g2o(text: str, name: str = "<g2o>") -> PoseGraph2D:
         elif tag == EDGE_SE2_XY:
             a = t.integer("a")
             b = t.integer("b")
-            measurement = t.numbers(("x", "y"))
+            measurement = t.values(("x", "y"))
             info = t.information(_XY_INFO, "edge")
             graph.point_edges.append(PointEdge2D(a, b, measurement, info))
             refs.append((where, "edge", (a,), (b,)))
@@ -375,9 +387,9 @@ def read_g2o(path: str | os.PathLike[str]) -> PoseGraph2D:
 
     Raises:
         FormatError: missing or unreadable file, unknown tag, wrong field count, a
-            non-number, NaN or infinity, a negative or non-integer id, a vertex defined
-            twice, an edge joining a vertex to itself or naming an undefined vertex, a
-            non-positive weight, an information matrix that is not positive definite or
+            non-number, NaN or infinity, a coordinate or angle beyond :data:`MAX_VALUE`, a
+            negative or non-integer id, a vertex defined twice, an edge joining a vertex
+            to itself or naming an undefined vertex, a non-positive weight, an information matrix that is not positive definite or
             is ill-conditioned (see :func:`information_problem`); the one-line message is
             ``"<file> line N: ..."``. A file without any ``VERTEX_SE2`` line (empty, only
             comments or only points) is refused: ``"<file>: no VERTEX_SE2 lines"``.

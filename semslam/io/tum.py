@@ -22,6 +22,12 @@ from semslam.io.atomic import atomic_write_text
 TUM_HEADER = "# t x y z qx qy qz qw"
 _COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
 
+MAX_POSITION = 1e6
+"""Largest ``|x|``, ``|y|``, ``|z|`` read, metres (1000 km: beyond it a file is broken)."""
+
+MAX_TIME = 1e11
+"""Largest ``|t|`` read, seconds (3000 years: nanosecond stamps are refused, not misread)."""
+
 
 def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> None:
     """Write a planar trajectory as a TUM file, atomically.
@@ -57,7 +63,8 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
 
     Raises:
         FormatError: missing file, no poses, wrong column count, a non-number,
-            NaN/infinity, a zero quaternion or time not strictly increasing;
+            NaN/infinity, a time beyond :data:`MAX_TIME` or a position beyond
+            :data:`MAX_POSITION`, a zero quaternion or time not strictly increasing;
             the message names the file and line.
     """
     name = os.fspath(path)
@@ -78,6 +85,16 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
             parse_number(tok, where, col, FormatError)
             for tok, col in zip(tokens, _COLUMNS, strict=True)
         ]
+        if abs(row[0]) > MAX_TIME:
+            raise FormatError(
+                f"{where}: t {row[0]:g} s is out of range (|t| <= {MAX_TIME:g} s; "
+                "TUM times are seconds)"
+            )
+        for col, value in zip(_COLUMNS[1:4], row[1:4], strict=True):
+            if abs(value) > MAX_POSITION:
+                raise FormatError(
+                    f"{where}: {col} {value:g} m is out of range (|{col}| <= {MAX_POSITION:g} m)"
+                )
         if math.hypot(*row[4:]) < 1e-9:
             raise FormatError(f"{where}: quaternion has zero length")
         check_time_order(previous, row[0], where, FormatError)

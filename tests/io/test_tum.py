@@ -72,6 +72,14 @@ def test_comments_and_blank_lines_are_skipped(tmp_path: Path) -> None:
         ),
         ("5 1 2 0 0 0 0 1\n5 1 2 0 0 0 0 1\n", r"traj\.tum line 2: time repeats \(5\.000\)"),
         ("0 1 2 0 0 0 0 0\n", r"traj\.tum line 1: quaternion has zero length"),
+        (  # finite but absurd: the errors' squares would overflow in the evaluation
+            "0 1 2 0 0 0 0 1\n1 1 -3e300 0 0 0 0 1\n",
+            r"traj\.tum line 2: y -3e\+300 m is out of range \(\|y\| <= 1e\+06 m\)",
+        ),
+        (  # nanosecond stamps
+            "1700000000000000000 1 2 0 0 0 0 1\n",
+            r"line 1: t 1\.7e\+18 s is out of range \(\|t\| <= 1e\+11 s; TUM times are seconds\)",
+        ),
         ("# only a comment\n", r"traj\.tum: no poses"),
     ],
 )
@@ -80,6 +88,15 @@ def test_rejects(tmp_path: Path, content: str, message: str) -> None:
     path.write_text(content)
     with pytest.raises(FormatError, match=message):
         read_tum(path)
+
+
+def test_huge_times_are_printed_short() -> None:
+    from semslam.io._rows import check_time_order
+
+    with pytest.raises(FormatError, match=r"^f: time goes backwards \(2 after 1e\+300\)$"):
+        check_time_order(1e300, 2.0, "f", FormatError)
+    with pytest.raises(FormatError, match=r"^f: time repeats \(1e\+300\)$"):
+        check_time_order(1e300, 1e300, "f", FormatError)
 
 
 def test_close_times_are_told_apart(tmp_path: Path) -> None:
