@@ -15,14 +15,35 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
 
 
+MAX_SETTING = 1e3
+"""Largest magnitude of a real-valued setting. Settings are metres, seconds, radians,
+sigmas, gates and rates; beyond a thousand a file is broken, and the filters' squares and
+gates would overflow or admit every candidate. Integer settings (counts) are not bounded."""
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _within_max_setting(cls, value: Any) -> Any:
+        for v in value if isinstance(value, tuple) else (value,):
+            if isinstance(v, float) and abs(v) > MAX_SETTING:
+                raise ValueError(f"{v:g} is out of range (|value| <= {MAX_SETTING:g})")
+        return value
 
 
 class OdometryNoiseConfig(_Section):

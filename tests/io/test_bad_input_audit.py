@@ -220,6 +220,43 @@ def test_rates_are_bounded(tmp_path: Path, field: str, value: float) -> None:
     _one_line(exc, "c.json", f"simulation.drive.{field}")
 
 
+@pytest.mark.parametrize(
+    ("section", "field", "value"),
+    [
+        ("mapping", "id_gate", 1e300),  # every slot in the garage a candidate: hours
+        ("mapping", "speed_scale_sigma", 1e300),  # overflowed in the odometry factor
+        ("localization", "yaw_acceleration_sigma", 1e300),  # the filter overflowed
+        ("localization", "init_position_sigma", 1e12),
+    ],
+)
+def test_absurd_real_settings_are_refused(
+    tmp_path: Path, section: str, field: str, value: float
+) -> None:
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({section: {field: value}}))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", f"{section}.{field}", f"{value:g} is out of range (|value| <= 1000)")
+
+
+def test_the_defaults_and_large_counts_are_within_range() -> None:
+    from pydantic import BaseModel
+
+    from semslam.config import MAX_SETTING
+
+    def reals(section):
+        for name in type(section).model_fields:
+            value = getattr(section, name)
+            if isinstance(value, BaseModel):
+                yield from reals(value)
+            elif isinstance(value, float):
+                yield value
+
+    assert max(abs(v) for v in reals(load_config(None))) <= MAX_SETTING
+    counts = with_overrides(load_config(None), mapping={"new_landmark_observations": 10**6})
+    assert counts.mapping.new_landmark_observations == 10**6
+
+
 def test_default_rates_are_valid() -> None:
     drive = load_config(None).simulation.drive
     assert drive.min_speed <= drive.max_speed and drive.odometry_rate <= 1000
