@@ -223,7 +223,7 @@ def test_rates_are_bounded(tmp_path: Path, field: str, value: float) -> None:
 @pytest.mark.parametrize(
     ("section", "field", "value"),
     [
-        ("mapping", "id_gate", 1e300),  # every slot in the garage a candidate: hours
+        ("mapping", "id_gate", 1e300),  # every slot in the garage a candidate: > 240 s
         ("mapping", "speed_scale_sigma", 1e300),  # overflowed in the odometry factor
         ("localization", "yaw_acceleration_sigma", 1e300),  # the filter overflowed
         ("localization", "init_position_sigma", 1e12),
