@@ -27,7 +27,6 @@ from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
 
-
 MAX_SETTING = 1e3
 """Largest magnitude of a real-valued setting. Settings are metres, seconds, radians,
 sigmas, gates and rates; beyond a thousand a file is broken, and the filters' squares and

@@ -77,6 +77,23 @@ def test_tags_refuses_tiny_focal_lengths(tmp_path):
     _fails(result, "--intrinsics", "at least 1 px")
 
 
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [  # finite but absurd: the tag-size one crashed while writing the JSON (NaN poses)
+        (("--intrinsics", "600,600,32,32", "--tag-size", "1e300"), ("--tag-size", "up to 100")),
+        (("--intrinsics", "1e300,600,32,32", "--tag-size", "0.5"), ("--intrinsics", "1e+06 px")),
+        (
+            ("--intrinsics", "600,600,32,32", "--tag-size", "0.5", "--distortion", "1e300,0,0,0"),
+            ("--distortion", "beyond 1e+06"),
+        ),
+    ],
+)
+def test_tags_refuses_absurd_sizes(tmp_path, options, words):
+    image = tmp_path / "i.png"
+    cv2.imwrite(str(image), np.full((64, 64), 128, np.uint8))
+    _fails(_run("tags", image, *options, "--json"), *words)
+
+
 # 4
 @pytest.mark.parametrize("option", ["--seed", "--drive"])
 def test_simulate_refuses_negative_seed_and_drive(tmp_path, option):

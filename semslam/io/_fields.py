@@ -220,7 +220,8 @@ def _plain_array(
         bound = min(within, _FLOAT_MAX)  # NaN, infinity and huge ints fail the comparison
         x, y = value
         plain = _plain_numbers(x, ()) and _plain_numbers(y, ())
-        return np.array(value, dtype=float) if plain and abs(x) <= bound and abs(y) <= bound else None
+        within_bound = plain and abs(x) <= bound and abs(y) <= bound
+        return np.array(value, dtype=float) if within_bound else None
     if not _plain_numbers(value, shape):
         return None
     try:

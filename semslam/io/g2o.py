@@ -389,10 +389,11 @@ def read_g2o(path: str | os.PathLike[str]) -> PoseGraph2D:
         FormatError: missing or unreadable file, unknown tag, wrong field count, a
             non-number, NaN or infinity, a coordinate or angle beyond :data:`MAX_VALUE`, a
             negative or non-integer id, a vertex defined twice, an edge joining a vertex
-            to itself or naming an undefined vertex, a non-positive weight, an information matrix that is not positive definite or
-            is ill-conditioned (see :func:`information_problem`); the one-line message is
-            ``"<file> line N: ..."``. A file without any ``VERTEX_SE2`` line (empty, only
-            comments or only points) is refused: ``"<file>: no VERTEX_SE2 lines"``.
+            to itself or naming an undefined vertex, a non-positive weight, an
+            information matrix that is not positive definite or is ill-conditioned (see
+            :func:`information_problem`); the one-line message is ``"<file> line N: ..."``.
+            A file without any ``VERTEX_SE2`` line (empty, only comments or only points)
+            is refused: ``"<file>: no VERTEX_SE2 lines"``.
     """
     name = os.fspath(path)
     graph = parse_g2o(read_text(path, FormatError), name)

@@ -15,8 +15,9 @@ Every load checks, in order: JSON syntax, finite numbers, the format
 string, the version, the schema, unique slot IDs, then the values: every
 coordinate within :data:`MAX_COORDINATE` of the origin, covariances symmetric
 positive semi-definite with no entry beyond :data:`MAX_VARIANCE`, markings of
-non-zero length, each tag (family, id) once. Each failure is a :class:`~semslam.errors.MapError` naming the file and
-the field (``map.json: slots/0/corner_covariances/0: not positive semi-definite``).
+non-zero length, each tag (family, id) once. Each failure is a
+:class:`~semslam.errors.MapError` naming the file and the field
+(``map.json: slots/0/corner_covariances/0: not positive semi-definite``).
 """
 
 from __future__ import annotations

@@ -35,6 +35,12 @@ from semslam.perception.tag_pose import PositionVariant
 from semslam.perception.tags import TagEstimate, TagSettings, estimate_tags
 from semslam.rig import Camera, CameraModel
 
+MAX_PIXELS = 1e6
+"""Largest focal length or principal-point coordinate accepted, px (beyond: a typo)."""
+
+MAX_TAG_SIZE = 100.0
+"""Largest tag edge accepted, metres."""
+
 
 def parse_numbers(text: str, name: str, counts: Sequence[int]) -> list[float]:
     """Comma-separated finite numbers, as many as one of ``counts``, or a one-line error."""
@@ -60,6 +66,12 @@ def make_camera(
         raise PerceptionError(
             f"--intrinsics: focal lengths must be at least 1 px, got {fx:g}, {fy:g}"
         )
+    if max(fx, fy, abs(cx), abs(cy)) > MAX_PIXELS:
+        raise PerceptionError(
+            f"--intrinsics: {fx:g}, {fy:g}, {cx:g}, {cy:g} out of range (at most {MAX_PIXELS:g} px)"
+        )
+    if distortion is not None and max((abs(float(v)) for v in distortion), default=0) > MAX_PIXELS:
+        raise PerceptionError(f"--distortion: a coefficient beyond {MAX_PIXELS:g} in magnitude")
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     D = np.asarray(distortion if distortion is not None else [], dtype=float)
     if fisheye and len(D) != 4:
@@ -119,8 +131,11 @@ def tags_in_images(
         FormatError: an image file is missing or unreadable.
         PerceptionError: bad intrinsics, distortion, tag size, family or variant.
     """
-    if not (math.isfinite(tag_size) and tag_size > 0):
-        raise PerceptionError(f"--tag-size must be a positive number of metres, got {tag_size}")
+    if not (math.isfinite(tag_size) and 0 < tag_size <= MAX_TAG_SIZE):
+        raise PerceptionError(
+            f"--tag-size must be a positive number of metres up to {MAX_TAG_SIZE:g}, "
+            f"got {tag_size:g}"
+        )
     try:
         position_variant = PositionVariant(variant)
     except ValueError:
