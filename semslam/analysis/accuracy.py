@@ -676,12 +676,16 @@ def predicted_on_grid(
 MAX_GRID_CELLS = 4_000_000
 """Most cells :func:`predicted_on_grid` computes (at a few ms a cell, already hours)."""
 
+MIN_GRID_STEP = 1e-3
+"""Smallest grid step, metres (a millimetre: finer says nothing more about a pose sigma)."""
+
 
 def _check_grid(x0: float, y0: float, x1: float, y1: float, step: float) -> None:
     """Refuse a step, bounds or cell count (:data:`MAX_GRID_CELLS`) the grid cannot have."""
-    if not (math.isfinite(step) and step > 0):
+    if not (math.isfinite(step) and step >= MIN_GRID_STEP):
         raise ConfigError(
-            f"accuracy: the grid step must be a positive number of metres, got {step}"
+            f"accuracy: the grid step must be a number of metres >= {MIN_GRID_STEP:g}, "
+            f"got {step:g}"
         )
     if not all(math.isfinite(v) for v in (x0, y0, x1, y1)) or x1 < x0 or y1 < y0:
         raise ConfigError(f"accuracy: the grid bounds {(x0, y0, x1, y1)} are not a finite box")

@@ -191,8 +191,11 @@ def test_an_indeterminate_system_is_one_line(monkeypatch: pytest.MonkeyPatch) ->
 def test_a_huge_accuracy_grid_is_refused_before_allocating() -> None:
     geometry = MapGeometry(make_map())
     with pytest.raises(ConfigError) as exc:
-        predicted_on_grid(geometry, step=1e-4)
+        predicted_on_grid(geometry, step=2e-3)
     _one_line(exc, "accuracy: a grid of", "cells", "--grid-step")
+    with pytest.raises(ConfigError) as exc:  # the cell count overflowed a float here
+        predicted_on_grid(geometry, step=1e-300)
+    _one_line(exc, "accuracy: the grid step must be a number of metres >= 0.001, got 1e-300")
     with pytest.raises(ConfigError) as exc:
         predicted_on_grid(geometry, step=1.0, bounds=(0.0, 0.0, 1e6, 20.0))
     _one_line(exc, "1000001 x 21")
