@@ -43,6 +43,7 @@ from semslam.errors import DriveError, FormatError
 from semslam.geometry import FloatArray
 from semslam.io._rows import parse_number
 from semslam.io._text import read_text
+from semslam.io.map_json import MAX_COORDINATE
 from semslam.io.tum import read_tum_rows
 
 COLOR_TXT = "color.txt"
@@ -229,8 +230,9 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
 
     Raises:
         DriveError: point.csv or line.csv is missing.
-        FormatError: a wrong header, column count or number, a repeated ID, a line whose
-            end point is not in point.csv; the message names the file and line.
+        FormatError: a wrong header, column count or number, a coordinate beyond
+            :data:`~semslam.io.map_json.MAX_COORDINATE`, a repeated ID, a line whose end
+            point is not in point.csv; the message names the file and line.
     """
     root = Path(folder)
     if not (root / POINT_CSV).is_file() and (root / VECTOR_MAP_DIR).is_dir():
@@ -244,8 +246,7 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
         pid = _integer(row["PID"], where, "PID")
         if pid in points:
             raise FormatError(f"{where}: repeated PID {pid}")
-        bx = parse_number(row["Bx"], where, "Bx", FormatError)
-        ly = parse_number(row["Ly"], where, "Ly", FormatError)
+        bx, ly = (_coordinate(row[c], where, c) for c in ("Bx", "Ly"))
         points[pid] = (ly, bx)  # map x = Ly, map y = Bx
     segments: list[tuple[tuple[float, float], tuple[float, float]]] = []
     seen: set[int] = set()
@@ -262,6 +263,16 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
             ends.append(points[pid])
         segments.append((ends[0], ends[1]))
     return np.array(segments, dtype=float).reshape(-1, 2, 2)
+
+
+def _coordinate(text: str, where: str, name: str) -> float:
+    """A vector-map coordinate, metres, within the map's :data:`MAX_COORDINATE`."""
+    value = parse_number(text, where, name, FormatError)
+    if abs(value) > MAX_COORDINATE:
+        raise FormatError(
+            f"{where}: {name} {value:g} m is out of range (|{name}| <= {MAX_COORDINATE:g} m)"
+        )
+    return value
 
 
 def _csv_rows(path: Path, required: tuple[str, ...]):
