@@ -327,7 +327,8 @@ class LocalizationConfig(_Section):
         5, ge=1, description="frames in a row whose observations were all rejected: lost"
     )
     relocalize_label_confidence: float = Field(
-        0.6, ge=0, le=1, description="slot IDs read at least this confidently may relocalize"
+        0.5, ge=0, le=1, description="slot IDs read at least this confidently may relocalize "
+        "(merged over the recent frames: best confidence x the label's share of the votes)"
     )
     relocalize_min_slots: int = Field(2, ge=1, description="slots that must agree to relocalize")
     relocalize_single_slot_reads: int = Field(
