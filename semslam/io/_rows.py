@@ -11,11 +11,19 @@ from semslam.errors import SemslamError
 from semslam.geometry import FloatArray
 
 
-def parse_number(token: str, where: str, name: str, error: type[SemslamError]) -> float:
-    """A finite float from ``token``.
+def parse_number(
+    token: str,
+    where: str,
+    name: str,
+    error: type[SemslamError],
+    within: float = math.inf,
+    unit: str = "",
+) -> float:
+    """A finite float from ``token``, at most ``within`` in magnitude (``unit`` for messages).
 
     Raises:
-        error: ``"<where>: <name> is not a number ('abc')"`` or ``"<where>: <name> is NaN"``.
+        error: ``"<where>: <name> is not a number ('abc')"``, ``"<where>: <name> is NaN"`` or
+            ``"<where>: x 1e+300 m is out of range (|x| <= 1e+06 m)"``.
     """
     try:
         value = float(token)
@@ -26,6 +34,9 @@ def parse_number(token: str, where: str, name: str, error: type[SemslamError]) -
         raise error(f"{where}: {name} is NaN")
     if math.isinf(value):
         raise error(f"{where}: {name} is infinite")
+    if abs(value) > within:
+        u = f" {unit}" if unit else ""
+        raise error(f"{where}: {name} {value:g}{u} is out of range (|{name}| <= {within:g}{u})")
     return value
 
 

@@ -26,13 +26,15 @@ def tag_to_dict(family: TagFamily, tag_id: int, size: float, pose: Any, height: 
     }
 
 
-def tag_fields(f: Field) -> dict[str, Any]:
-    """The checked parts of a tag dict: family, tag_id, size, pose (3,), height, covariance."""
+def tag_fields(f: Field, reach: float | None = None) -> dict[str, Any]:
+    """The checked parts of a tag dict: family, tag_id, size, pose (3,), height, covariance;
+    ``x`` and ``y`` within ``reach`` (metres) of the frame's origin when given."""
+    low, high = (None, None) if reach is None else (-reach, reach)
     return {
         "family": f["family"].choice(TagFamily),
         "tag_id": f["id"].integer(0),
         "size": f["size"].number(positive=True),
-        "pose": np.array([f["x"].number(), f["y"].number(), f["yaw"].number()]),
+        "pose": np.array([f["x"].number(low, high), f["y"].number(low, high), f["yaw"].number()]),
         "height": f["height"].number(),
         "covariance": f["covariance"].array((3, 3)),
     }

@@ -258,11 +258,9 @@ class _Tokens:
 
     def values(self, names: tuple[str, ...]) -> FloatArray:
         """Numbers of a pose, point or measurement, each within :data:`MAX_VALUE`."""
-        values = self.numbers(names)
-        for name, value in zip(names, values, strict=True):
-            if abs(value) > MAX_VALUE:
-                raise self.fail(f"{name} {value:g} is out of range (|{name}| <= {MAX_VALUE:g})")
-        return values
+        return np.array(
+            [parse_number(self._next(n), self.where, n, FormatError, MAX_VALUE) for n in names]
+        )
 
     def information(self, names: tuple[str, ...], what: str) -> FloatArray:
         info = information_from_upper(self.numbers(names))

@@ -246,7 +246,9 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
         pid = _integer(row["PID"], where, "PID")
         if pid in points:
             raise FormatError(f"{where}: repeated PID {pid}")
-        bx, ly = (_coordinate(row[c], where, c) for c in ("Bx", "Ly"))
+        bx, ly = (
+            parse_number(row[c], where, c, FormatError, MAX_COORDINATE, "m") for c in ("Bx", "Ly")
+        )
         points[pid] = (ly, bx)  # map x = Ly, map y = Bx
     segments: list[tuple[tuple[float, float], tuple[float, float]]] = []
     seen: set[int] = set()
@@ -263,16 +265,6 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
             ends.append(points[pid])
         segments.append((ends[0], ends[1]))
     return np.array(segments, dtype=float).reshape(-1, 2, 2)
-
-
-def _coordinate(text: str, where: str, name: str) -> float:
-    """A vector-map coordinate, metres, within the map's :data:`MAX_COORDINATE`."""
-    value = parse_number(text, where, name, FormatError)
-    if abs(value) > MAX_COORDINATE:
-        raise FormatError(
-            f"{where}: {name} {value:g} m is out of range (|{name}| <= {MAX_COORDINATE:g} m)"
-        )
-    return value
 
 
 def _csv_rows(path: Path, required: tuple[str, ...]):

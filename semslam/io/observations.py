@@ -168,9 +168,7 @@ def _tag_to_dict(tag: TagObservation) -> dict[str, Any]:
 
 
 def _tag_from_field(f: Field) -> TagObservation:
-    parts = tag_fields(f)
-    for key in ("x", "y"):
-        f[key].number(-MAX_RANGE, MAX_RANGE)
+    parts = tag_fields(f, reach=MAX_RANGE)
     check_covariance(f["covariance"], parts["covariance"], MAX_RANGE**2)
     return TagObservation(vTt=parts.pop("pose"), **parts)
 

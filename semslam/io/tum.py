@@ -28,6 +28,8 @@ MAX_POSITION = 1e6
 MAX_TIME = 1e11
 """Largest ``|t|`` read, seconds (3000 years: nanosecond stamps are refused, not misread)."""
 
+_BOUNDS = {col: (MAX_POSITION, "m") for col in ("x", "y", "z")}  # parse_number's within, unit
+
 
 def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> None:
     """Write a planar trajectory as a TUM file, atomically.
@@ -82,7 +84,7 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
                 f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}"
             )
         row = [
-            parse_number(tok, where, col, FormatError)
+            parse_number(tok, where, col, FormatError, *_BOUNDS.get(col, ()))
             for tok, col in zip(tokens, _COLUMNS, strict=True)
         ]
         if abs(row[0]) > MAX_TIME:
@@ -90,11 +92,6 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
                 f"{where}: t {row[0]:g} s is out of range (|t| <= {MAX_TIME:g} s; "
                 "TUM times are seconds)"
             )
-        for col, value in zip(_COLUMNS[1:4], row[1:4], strict=True):
-            if abs(value) > MAX_POSITION:
-                raise FormatError(
-                    f"{where}: {col} {value:g} m is out of range (|{col}| <= {MAX_POSITION:g} m)"
-                )
         if math.hypot(*row[4:]) < 1e-9:
             raise FormatError(f"{where}: quaternion has zero length")
         check_time_order(previous, row[0], where, FormatError)

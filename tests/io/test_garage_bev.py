@@ -221,7 +221,11 @@ def test_broken_recording_files(tmp_path: Path, file: str, text: str, message: s
         ("point.csv", "PID,B,L,H,Bx\n1,0,0,0,1\n", r"point.csv line 1: header lacks Ly"),
         ("point.csv", "PID,Bx,Ly\n1,1.0,x\n", r"point.csv line 2: Ly"),
         ("point.csv", "PID,Bx,Ly\n1,1.0,2\n1,1.0,2\n", r"point.csv line 3: repeated PID 1"),
-        ("point.csv", "PID,Bx,Ly\n1,-1e300,2\n", r"point.csv line 2: Bx -1e\+300 m is out of range"),
+        (
+            "point.csv",
+            "PID,Bx,Ly\n1,-1e300,2\n",
+            r"point.csv line 2: Bx -1e\+300 m is out of range",
+        ),
         ("point.csv", "PID,Bx,Ly\n1.5,1.0,2\n", r"point.csv line 2: PID is '1.5'"),
         ("point.csv", "PID,Bx,Ly\n1,1.0\n", r"point.csv line 2: expected 3 columns"),
         ("point.csv", "", r"point.csv: empty file"),
