@@ -56,8 +56,8 @@ def recorded_pose_map(drive: Path, src: Path, config) -> np.ndarray:
     source = d.info.source
     poses = move_poses(rec.odometry_poses, source["vehicle_origin_m"],
                        math.radians(source["heading_offset_deg"]))
-    # the drive's detections are in the vehicle frame turned by the slip angle (the heading
-    # its odometry.csv carries): the same turn here puts them back on the recorded body pose
+    # the drive's detections are in the car's axes, which its odometry.csv heads along: the
+    # recorded heading turned by heading_offset_deg and the slip angle of track_odometry
     poses[:, 2] = track_odometry(rec.odometry_t, poses)[2]
     cfg = config.mapping
     segs, widths, conf = [], [], []

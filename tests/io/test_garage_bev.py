@@ -148,12 +148,45 @@ def test_track_odometry_removes_sideways_slip() -> None:
 
 def test_vehicle_frame_round_trip() -> None:
     centre = np.array([[3.0, 4.0, 0.7]])
-    vehicle = move_poses(centre, -1.3, 0.05)
+    vehicle = move_poses(centre, -1.3, 0.0)
     cP = np.array([[2.0, -1.0], [0.5, 3.0]])
-    vP = to_vehicle(cP, -1.3, 0.05)
+    vP = to_vehicle(cP, -1.3)
     from semslam.geometry import transform_points
 
     assert np.allclose(transform_points(vehicle[0], vP), transform_points(centre[0], cP))
+
+
+def test_mask_points_land_where_they_are_through_the_imported_odometry() -> None:
+    """A car whose recorded heading is turned 3 deg against its direction of travel (and
+    whose recorded position is the mask centre, 1.3 m ahead of the rear axle) sees floor
+    points in masks drawn in its own axes: through the importer's calibration, tracked
+    odometry and vehicle frame, every point lands on the floor within 2 cm."""
+    from semslam.geometry import transform_points
+    from semslam.motion import integrate_odometry
+
+    t = np.arange(900) * 0.1
+    axle = integrate_odometry([0.0, 0.0, 0.3], t, 2.0 + 0.5 * np.sin(t / 7),
+                              0.15 * np.sin(t / 5))
+    axle[:, 2] = np.unwrap(axle[:, 2])
+    centre = move_poses(axle, 1.3, 0.0)  # the mask centre, in the car's axes
+    recorded = centre.copy()
+    recorded[:, 2] -= math.radians(3.0)  # the recording's heading misses the car's
+    offset, heading = odometry_point(t, recorded)
+    assert offset == pytest.approx(-1.3, abs=0.02)
+    assert math.degrees(heading) == pytest.approx(3.0, abs=0.05)
+    speed, rate, _ = track_odometry(t, move_poses(recorded, offset, heading))
+    reckoned = integrate_odometry(move_poses(recorded, offset, heading)[0], t, speed, rate)
+    floor = np.array([[5.0, 2.0], [-3.0, 1.5], [2.0, -4.0]])  # points around the car
+    worst = 0.0
+    for k in range(0, len(t), 60):
+        mask_points = transform_points(
+            np.array([-centre[k, 0], -centre[k, 1], 0.0]), floor
+        )  # the floor relative to the mask centre, then into the car's axes:
+        c, s = math.cos(centre[k, 2]), math.sin(centre[k, 2])
+        cP = mask_points @ np.array([[c, -s], [s, c]])
+        placed = transform_points(reckoned[k], to_vehicle(cP, offset))
+        worst = max(worst, float(np.hypot(*(placed - floor).T).max()))
+    assert worst < 0.02
 
 
 def test_match_times_tolerates_a_millisecond() -> None:
