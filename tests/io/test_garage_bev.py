@@ -311,3 +311,19 @@ def test_import_writes_a_drive_semslam_reads(tmp_path: Path) -> None:
         (tmp_path / "other").mkdir()
         (tmp_path / "other" / "x").write_text("x")
         import_garage_bev(REAL, tmp_path / "other", every=200)
+
+
+def test_the_drive_settings_are_valid_config(tmp_path: Path) -> None:
+    """config.json of an imported drive (mapping and localization settings) loads."""
+    import json
+
+    from semslam.config import load_config
+    from semslam.pipeline.import_bev import DRIVE_LOCALIZATION_CONFIG, DRIVE_MAPPING_CONFIG
+
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps({"mapping": DRIVE_MAPPING_CONFIG,
+                                "localization": DRIVE_LOCALIZATION_CONFIG}))
+    cfg = load_config(path)
+    assert cfg.localization.speed_sigma == DRIVE_LOCALIZATION_CONFIG["speed_sigma"]
+    assert not cfg.localization.estimate_odometry_errors
+    assert cfg.mapping.marking_sigma == DRIVE_MAPPING_CONFIG["marking_sigma"]
