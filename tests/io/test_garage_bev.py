@@ -161,7 +161,7 @@ def test_mask_points_land_where_they_are_through_the_imported_odometry() -> None
     whose recorded position is the mask centre, 1.3 m ahead of the rear axle) sees floor
     points in masks drawn in its own axes: through the importer's calibration, tracked
     odometry and vehicle frame, every point lands on the floor within 2 cm."""
-    from semslam.geometry import transform_points
+    from semslam.geometry import inverse, transform_points
     from semslam.motion import integrate_odometry
 
     t = np.arange(900) * 0.1
@@ -174,16 +174,13 @@ def test_mask_points_land_where_they_are_through_the_imported_odometry() -> None
     offset, heading = odometry_point(t, recorded)
     assert offset == pytest.approx(-1.3, abs=0.02)
     assert math.degrees(heading) == pytest.approx(3.0, abs=0.05)
-    speed, rate, _ = track_odometry(t, move_poses(recorded, offset, heading))
-    reckoned = integrate_odometry(move_poses(recorded, offset, heading)[0], t, speed, rate)
+    vehicle = move_poses(recorded, offset, heading)
+    speed, rate, _ = track_odometry(t, vehicle)
+    reckoned = integrate_odometry(vehicle[0], t, speed, rate)
     floor = np.array([[5.0, 2.0], [-3.0, 1.5], [2.0, -4.0]])  # points around the car
     worst = 0.0
     for k in range(0, len(t), 60):
-        mask_points = transform_points(
-            np.array([-centre[k, 0], -centre[k, 1], 0.0]), floor
-        )  # the floor relative to the mask centre, then into the car's axes:
-        c, s = math.cos(centre[k, 2]), math.sin(centre[k, 2])
-        cP = mask_points @ np.array([[c, -s], [s, c]])
+        cP = transform_points(inverse(centre[k]), floor)  # what the mask shows
         placed = transform_points(reckoned[k], to_vehicle(cP, offset))
         worst = max(worst, float(np.hypot(*(placed - floor).T).max()))
     assert worst < 0.02
