@@ -6,6 +6,7 @@ markings only, scores each with `semslam evaluate trajectory`, and runs the relo
 trials through the library (100 random starts with `--init auto`; kidnaps of 10 m).
 
     python benchmarks/bench_localization.py [--seeds 1 2 3] [--starts 100] [--kidnaps 20]
+        [--observability-only]
 """
 
 from __future__ import annotations
@@ -73,13 +74,12 @@ def relocalization_trials(drive_dir: Path, map_path: Path, starts: int, kidnaps:
     truth_t, truth_poses = drive.groundtruth()
 
     def observable(first: int, seconds: float) -> bool:
-        t0 = exact[first].t
-        return any(f.slots or f.tags for f in exact[first:] if f.t - t0 <= seconds)
+        return _sees(exact, first, seconds, lines=False)
 
     semantic_map = load_map(map_path)
     rng = np.random.default_rng(seed)
     found_s, wrong, start_seen = [], 0, []
-    for start in rng.integers(0, len(frames) - 100, starts):
+    for start in _random_starts(rng, len(frames), starts):
         start_seen.append(observable(int(start), 2.0))
         keep = odo.t >= frames[start].t - 1e-9
         loc = Localizer(semantic_map, cfg, odo.t[keep], odo.speed[keep], odo.yaw_rate[keep])
@@ -131,17 +131,57 @@ def relocalization_trials(drive_dir: Path, map_path: Path, starts: int, kidnaps:
     }
 
 
+def _random_starts(rng: np.random.Generator, frames: int, starts: int) -> np.ndarray:
+    """The trials' start frames (the first draws of the trials' generator)."""
+    return rng.integers(0, frames - 100, starts)
+
+
+def _sees(exact: list, first: int, seconds: float, lines: bool) -> bool:
+    """Does the exact sensor report a slot or tag (or, with ``lines``, a painted line) in
+    the ``seconds`` from frame ``first`` on?"""
+    t0 = exact[first].t
+    for f in exact[first:]:
+        if f.t - t0 > seconds:
+            return False
+        if f.slots or f.tags or (lines and f.markings):
+            return True
+    return False
+
+
+def start_observability(drive_dir: Path, starts: int, seed: int) -> dict:
+    """Of the relocalization trials' random starts (the same draws), how many see a slot or
+    tag within 2 s, how many only painted lines, how many nothing at all: the share of
+    starts any method could localize from within 2 s is at most 1 - nothing / starts."""
+    from semslam.io import Drive
+
+    exact = Drive.open(drive_dir).observations("exact")
+    rng = np.random.default_rng(seed)
+    first = [int(k) for k in _random_starts(rng, len(exact), starts)]
+    landmarks = sum(_sees(exact, k, 2.0, lines=False) for k in first)
+    anything = sum(_sees(exact, k, 2.0, lines=True) for k in first)
+    return {"starts": starts, "slot_or_tag_within_2s": landmarks,
+            "only_lines_within_2s": anything - landmarks, "nothing_within_2s": starts - anything}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1])
     parser.add_argument("--starts", type=int, default=100)
     parser.add_argument("--kidnaps", type=int, default=20)
+    parser.add_argument("--observability-only", action="store_true",
+                        help="only count what the random starts can see (no map, no filter)")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for seed in args.seeds:
             d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
+            if args.observability_only:
+                run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive",
+                     "1", "--no-images"])
+                rows.append({"seed": seed, **start_observability(d1, args.starts, seed)})
+                print(json.dumps(rows[-1]), flush=True)
+                continue
             run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images"])
             run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive", "1",
                  "--no-images"])
