@@ -176,10 +176,7 @@ class Field:
         a = _plain_array(self.value, shape, within)
         if a is None:  # something is wrong: the element-wise walk names it
             a = np.array(self._nested(shape), dtype=float)
-            big = np.flatnonzero(np.abs(a.reshape(-1)) > within)
-            if big.size:
-                value = float(a.reshape(-1)[big[0]])
-                self.fail(f"{value:g} is out of range (|value| <= {within:g})")
+            check_within(self, a, within)
         if a.size == 0:
             a = a.reshape(tuple(0 if n is None else n for n in shape))
         return a
@@ -192,6 +189,14 @@ class Field:
         if n is not None and len(elements) != n:
             self.fail(f"expected {n} {_element_name(shape)}, got {len(elements)}")
         return [e._nested(shape[1:]) for e in elements]
+
+
+def check_within(f: Field, values: Any, within: float) -> None:
+    """Refuse (naming ``f``) the first of ``values`` beyond ``within`` in magnitude."""
+    flat = np.asarray(values, dtype=float).reshape(-1)
+    big = np.flatnonzero(np.abs(flat) > within)
+    if big.size:
+        f.fail(f"{float(flat[big[0]]):g} is out of range (|value| <= {within:g})")
 
 
 def check_covariance(f: Field, covariance: FloatArray, bound: float) -> None:

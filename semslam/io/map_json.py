@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from semslam.errors import MapError
-from semslam.io._fields import Field, check_covariance
+from semslam.io._fields import Field, check_covariance, check_within
 from semslam.io._json import (
     dumps_pretty,
     find_non_finite,
@@ -110,14 +110,6 @@ def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
     )
 
 
-def _check_coordinates(f: Field, points: np.ndarray) -> None:
-    """Refuse a coordinate farther than :data:`MAX_COORDINATE` from the origin."""
-    big = np.flatnonzero(np.abs(np.asarray(points, dtype=float)).reshape(-1) > MAX_COORDINATE)
-    if big.size:
-        value = float(np.asarray(points, dtype=float).reshape(-1)[big[0]])
-        f.fail(f"coordinate {value:g} m is out of range (|x|, |y| <= {MAX_COORDINATE:g} m)")
-
-
 def check_map_document(document: Any, source: str = "<dict>") -> None:
     """Check a map document without building the map (see :func:`map_from_dict`)."""
     if not isinstance(document, dict):
@@ -177,8 +169,7 @@ def _slot_to_dict(slot: Slot) -> dict[str, Any]:
 
 
 def _slot_from_field(f: Field) -> Slot:
-    corners = f["corners"].array((4, 2))
-    _check_coordinates(f["corners"], corners)
+    corners = f["corners"].array((4, 2), within=MAX_COORDINATE)
     covariances = f["corner_covariances"].array((4, 2, 2))
     for j, field in enumerate(f["corner_covariances"].items()):
         check_covariance(field, covariances[j], MAX_VARIANCE)
@@ -202,7 +193,7 @@ def _tag_to_dict(tag: Tag) -> dict[str, Any]:
 
 def _tag_from_field(f: Field) -> Tag:
     parts = tag_fields(f)
-    _check_coordinates(f, parts["pose"][:2])
+    check_within(f, parts["pose"][:2], MAX_COORDINATE)
     check_covariance(f["covariance"], parts["covariance"], MAX_VARIANCE)
     return Tag(mTt=parts.pop("pose"), **parts)
 
@@ -216,9 +207,7 @@ def _marking_to_dict(marking: Marking) -> dict[str, Any]:
 
 
 def _marking_from_field(f: Field) -> Marking:
-    a, b = f["a"].array((2,)), f["b"].array((2,))
-    _check_coordinates(f["a"], a)
-    _check_coordinates(f["b"], b)
+    a, b = f["a"].array((2,), within=MAX_COORDINATE), f["b"].array((2,), within=MAX_COORDINATE)
     if np.array_equal(a, b):
         f.fail("zero-length marking (a and b are the same point)")
     return Marking(a=a, b=b, width=f["width"].number(positive=True))
