@@ -186,11 +186,16 @@ class Tag:
 
 @dataclass(frozen=True, eq=False)
 class Marking:
-    """A painted line marking in the map frame: end points ``a``, ``b`` (2,), width, metres."""
+    """A painted line marking in the map frame: end points ``a``, ``b`` (2,), width, metres.
+
+    ``sigma``: 1-sigma of the line's position across itself, metres, RMS along the segment
+    (the mapper's marginal of the line; it holds the map's own drift, as a slot corner's
+    covariance does); None: not known (consumers take a configured default)."""
 
     a: FloatArray
     b: FloatArray
     width: float
+    sigma: float | None = None
 
 
 @dataclass(frozen=True, eq=False)

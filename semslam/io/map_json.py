@@ -9,7 +9,7 @@ Layout (map frame, metres and radians)::
                 "corner_covariances" [4][2][2], "kind", "observations",
                 optional "heading_variance" (rad^2)}],
      "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
-     "markings": [{"a" [2], "b" [2], "width"}]}
+     "markings": [{"a" [2], "b" [2], "width", optional "sigma" (m)}]}
 
 Every load checks, in order: JSON syntax, finite numbers, the format
 string, the version, the schema, unique slot IDs, then the values: every
@@ -203,6 +203,7 @@ def _marking_to_dict(marking: Marking) -> dict[str, Any]:
         "a": np.asarray(marking.a, dtype=float).tolist(),
         "b": np.asarray(marking.b, dtype=float).tolist(),
         "width": float(marking.width),
+        **({} if marking.sigma is None else {"sigma": float(marking.sigma)}),
     }
 
 
@@ -210,4 +211,5 @@ def _marking_from_field(f: Field) -> Marking:
     a, b = f["a"].array((2,), within=MAX_COORDINATE), f["b"].array((2,), within=MAX_COORDINATE)
     if np.array_equal(a, b):
         f.fail("zero-length marking (a and b are the same point)")
-    return Marking(a=a, b=b, width=f["width"].number(positive=True))
+    sigma = None if (v := f.get("sigma")) is None else v.number(0.0, MAX_COORDINATE)
+    return Marking(a=a, b=b, width=f["width"].number(positive=True), sigma=sigma)

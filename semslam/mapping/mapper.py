@@ -51,7 +51,7 @@ from semslam.mapping.factors import (
 from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import SlotLandmark, SlotLandmarks, SlotPool, mean_corner_distance
-from semslam.mapping.lines import LineLandmarks
+from semslam.mapping.lines import LineLandmarks, across_sigma
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations, robust_extent
 from semslam.mapping.maxmix import (
@@ -290,7 +290,6 @@ class Mapper:
         if self.cfg.use_markings:
             for marking in frame.markings:
                 self._add_marking(k, marking)
-            self.lines.expire(k)
         self._timing["association_s"] += time.perf_counter() - started
 
     # ------------------------------------------------------------------ tags
@@ -339,9 +338,10 @@ class Mapper:
         if not candidates:
             self.lines.start(mE, k).detections.append((k, vE, obs.width, sigma))
             return
-        if len(candidates) > 1 and candidates[1][1] < 2 * candidates[0][1] + 0.02:
+        chosen = self.lines.pick(mE, candidates, sigma)
+        if chosen is None:
             return  # between two lines: leave it out rather than guess
-        line = self.lines.items[candidates[0][0]]
+        line = self.lines.items[chosen]
         line.detections.append((k, vE, obs.width, sigma))
         if line.in_graph:
             self.lines.grow(line.index, mE)
@@ -779,13 +779,14 @@ class Mapper:
                     cov,
                 )
             )
-        markings = self._export_markings()
+        markings = self._export_markings(marginals)
         return SemanticMap(tuple(slots), tuple(tags), markings), slot_of_landmark
 
-    def _export_markings(self) -> tuple[Marking, ...]:
+    def _export_markings(self, marginals) -> tuple[Marking, ...]:
         """Painted lines: the graph's line landmarks with extents re-measured from all their
-        detections at the final keyframe poses (:func:`robust_extent`), or, without a graph,
-        the detections placed by odometry and merged."""
+        detections at the final keyframe poses (:func:`robust_extent`) and their position
+        uncertainty from the line's marginal (:func:`across_sigma`), or, without a graph,
+        the detections placed by odometry and merged (no uncertainty)."""
         poses = self.keyframe_poses
         if not self.use_graph:
             if not self.marking_detections:
@@ -802,7 +803,7 @@ class Mapper:
             )
         members: dict[int, list] = {}
         for line in self.lines.items:
-            if line.merged_into == -1 or not (line.in_graph or line.merged_into is not None):
+            if not (line.in_graph or line.merged_into is not None):
                 continue
             members.setdefault(self.lines.resolve(line.index), []).extend(line.detections)
         out = []
@@ -820,5 +821,12 @@ class Mapper:
             b = line.foot() + s1 * line.direction
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
-            out.append(Marking(a, b, float(np.median([w for _, _, w, _ in detections]))))
+            sigma = None
+            if marginals is not None:
+                try:
+                    sigma = across_sigma(marginals.marginalCovariance(L(index)), s0, s1)
+                except RuntimeError:  # gtsam refused this clique, as for slots: not known
+                    self._marginal_fallbacks += 1
+            width = float(np.median([w for _, _, w, _ in detections]))
+            out.append(Marking(a, b, width, sigma))
         return tuple(out)

@@ -205,3 +205,25 @@ def test_a_slot_heading_variance_round_trips_and_may_be_absent(tmp_path: Path) -
     _write(tmp_path / "bad.json", document)
     with pytest.raises(MapError, match="heading_variance"):
         load_map(tmp_path / "bad.json")
+
+
+def test_a_marking_sigma_round_trips_and_may_be_absent(tmp_path: Path) -> None:
+    import dataclasses
+
+    original = make_map()
+    plain = original.markings[0]
+    assert plain.sigma is None
+    known = dataclasses.replace(plain, sigma=0.031)
+    save_map(tmp_path / "map.json", dataclasses.replace(original, markings=(known, plain)))
+    document = json.loads((tmp_path / "map.json").read_text())
+    assert document["markings"][0]["sigma"] == 0.031
+    assert "sigma" not in document["markings"][1]
+    jsonschema.validate(document, load_schema("map"))
+    loaded = load_map(tmp_path / "map.json")
+    assert loaded.markings[0].sigma == 0.031 and loaded.markings[1].sigma is None
+    for bad in (-0.1, 1e300):
+        document["markings"][0]["sigma"] = bad
+        _write(tmp_path / "bad.json", document)
+        with pytest.raises(MapError, match="markings/0/sigma") as err:
+            load_map(tmp_path / "bad.json")
+        assert "\n" not in str(err.value)
