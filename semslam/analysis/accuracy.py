@@ -229,8 +229,7 @@ class LocalizerModel:
             painted lines are used without any slot, to this times
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
-        marking_map_sigma: assumed uncertainty of a map line, m (the configured one: this
-            prediction does not read the map's own per-line values).
+        marking_map_sigma: assumed uncertainty of a map line (maps store none), m.
     """
 
     corner_sigma_min: float = 0.0

@@ -72,7 +72,6 @@ class Associations:
     kinds: list[str] = field(default_factory=list)  # "slot" | "tag" | "marking", per measurement
     slots: list[int] = field(default_factory=list)  # associated map slots (one stacked
     # measurement holds all their corners, as one holds all the frame's markings)
-    markings: list[int] = field(default_factory=list)  # associated map markings, per detection
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     count: int = 0  # associated observations
 
@@ -114,9 +113,6 @@ class LocalMap:
         self.markings = semantic_map.markings
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
-        self.marking_sigma = np.array([  # the map line's own uncertainty, else configured
-            cfg.marking_map_sigma if m.sigma is None else m.sigma for m in self.markings
-        ], dtype=float)
         samples, owners = [], []
         for i, (a, b) in enumerate(zip(self.marking_a, self.marking_b, strict=True)):
             n = max(2, int(math.ceil(np.linalg.norm(b - a) / _MARKING_SAMPLE)) + 1)
@@ -311,7 +307,7 @@ class LocalMap:
             math.radians(cfg.marking_max_angle_deg)
         )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < self._marking_len[own] + 0.5)
         det, own, n, r = det[keep], own[keep], n[keep], -across[keep]  # r: 0 - across
-        R1 = sigma[det] ** 2 + self.marking_sigma[own] ** 2  # (pairs,)
+        R1 = sigma[det] ** 2 + cfg.marking_map_sigma**2  # (pairs,)
         # the residuals' rows [n, n . dR/dyaw e] for both end points
         dE = vE[det] @ np.array([[-s, c], [-c, -s]])  # (pairs, 2, 2): dR/dyaw e
         H = np.empty((len(det), 2, 3))
@@ -345,7 +341,7 @@ class LocalMap:
         end_sigma = np.repeat(sigma[det[w]], 2)  # per end point
         m = MarkingMeasurement.build(
             pose, vE[det[w]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-            np.sqrt(end_sigma**2 + self.marking_sigma[k] ** 2), margin=2 * end_sigma,
+            np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
             reach=cfg.marking_clamp_reach,
         )
         # gate again the winners that got clamped rows (the others passed with these rows)
@@ -371,10 +367,9 @@ class LocalMap:
             end_sigma = np.repeat(sigma[det[w[g]]], 2)
             m = MarkingMeasurement.build(
                 pose, vE[det[w[g]]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-                np.sqrt(end_sigma**2 + self.marking_sigma[k] ** 2), margin=2 * end_sigma,
+                np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
                 reach=cfg.marking_clamp_reach,
             )
-        out.markings.extend(own[w[np.array(good)]].tolist())
         self._accept(out, "marking", m, observations=len(good))
 
 

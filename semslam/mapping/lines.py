@@ -11,10 +11,9 @@ to a line when its direction is within ``angle_tolerance``, both end points lie 
 ``distance_gate`` of the line, and its extent overlaps the line's extended by ``gap`` (a
 detection is often a piece of a long line, clipped by the edge of the top view). A
 detection that fits no line starts a tentative line; a tentative line joins the graph
-once it has ``min_support`` detections, from whichever passes they come (a line glimpsed
-twice on each of two passes is as real as one seen four times in a row; a false detection
-rarely repeats in the same place). A tentative line that never gets there stays out of
-the graph and the map. Everything is in the map frame, metres and radians.
+once it has ``min_support`` detections and is forgotten if it has not within
+``max_age`` keyframes (false detections come and go). Everything is in the map frame,
+metres and radians.
 """
 
 from __future__ import annotations
@@ -119,12 +118,14 @@ class LineLandmarks:
         distance_gate: float = 0.2,
         gap: float = 1.0,
         min_support: int = 3,
+        max_age: int = 20,
     ) -> None:
         self.items: list[LineLandmark] = []
         self.sin_tolerance = math.sin(math.radians(angle_tolerance_deg))
         self.distance_gate = distance_gate
         self.gap = gap
         self.min_support = min_support
+        self.max_age = max_age
         self._rows = np.zeros((0, 6))  # theta, d, anchor x, anchor y, s_min, s_max
         self._live = np.zeros(0, dtype=bool)
         self._in_graph = np.zeros(0, dtype=bool)
@@ -231,34 +232,6 @@ class LineLandmarks:
                 found.append((i, (across_a + across_b) / 2))
         return sorted(found, key=lambda hit: hit[1])
 
-    def pick(self, mE: FloatArray, candidates: list[tuple[int, float]], sigma: float) -> int | None:
-        """The line of ``candidates`` (nearest first, from :meth:`candidates`) a detection
-        with map end points ``mE`` (2, 2) belongs to, or None when it lies between two lines.
-
-        The nearest wins unless the second is nearly as near (less than twice as far, plus
-        2 cm). Then, if the two lines pass within ``sigma`` (the detection's own 1-sigma
-        across, m) of each other at the detection, the detection cannot tell them apart:
-        they are one painted line to it (a line and its duplicate not merged yet, or two
-        collinear pieces), and it goes to the one whose extent it reaches (overlaps, or
-        comes nearer to along the line). Lines farther apart than that are two lines and
-        the detection between them is left out rather than guessed."""
-        first = candidates[0][0]
-        if len(candidates) == 1 or candidates[1][1] >= 2 * candidates[0][1] + 0.02:
-            return first
-        second = candidates[1][0]
-        a, b = self.items[first], self.items[second]
-        middle = np.asarray(mE, dtype=float).mean(axis=0)[None]
-        offset = b.foot() + float(b.along(middle)[0]) * b.direction  # b's point there
-        if abs(float(a.across(offset[None])[0])) >= sigma:
-            return None
-        return second if self._gap(b, mE) < self._gap(a, mE) else first
-
-    @staticmethod
-    def _gap(line: LineLandmark, mE: FloatArray) -> float:
-        """How far along ``line`` the detection ``mE`` lies outside its extent, m (0: overlaps)."""
-        s = line.along(mE)
-        return max(0.0, line.s_min - float(s.max()), float(s.min()) - line.s_max)
-
     def start(self, mE: FloatArray, keyframe: int) -> LineLandmark:
         """A tentative line through one detection."""
         anchor, theta = fit_line(mE)
@@ -283,8 +256,17 @@ class LineLandmarks:
         line.s_min, line.s_max = float(s.min()), float(s.max())
         self._sync(line)
 
+    def expire(self, keyframe: int) -> list[LineLandmark]:
+        """Forget tentative lines that waited too long; returns them."""
+        waiting = np.flatnonzero(self._live & ~self._in_graph)
+        gone = [self.items[i] for i in waiting if keyframe - self.items[i].created > self.max_age]
+        for line in gone:
+            line.merged_into = -1  # dropped: a false or passing detection
+            self._sync(line)
+        return gone
+
     def resolve(self, index: int) -> int:
-        while self.items[index].merged_into is not None:
+        while self.items[index].merged_into is not None and self.items[index].merged_into >= 0:
             index = self.items[index].merged_into
         return index
 

@@ -290,6 +290,7 @@ class Mapper:
         if self.cfg.use_markings:
             for marking in frame.markings:
                 self._add_marking(k, marking)
+            self.lines.expire(k)
         self._timing["association_s"] += time.perf_counter() - started
 
     # ------------------------------------------------------------------ tags
@@ -338,10 +339,9 @@ class Mapper:
         if not candidates:
             self.lines.start(mE, k).detections.append((k, vE, obs.width, sigma))
             return
-        chosen = self.lines.pick(mE, candidates, sigma)
-        if chosen is None:
+        if len(candidates) > 1 and candidates[1][1] < 2 * candidates[0][1] + 0.02:
             return  # between two lines: leave it out rather than guess
-        line = self.lines.items[chosen]
+        line = self.lines.items[candidates[0][0]]
         line.detections.append((k, vE, obs.width, sigma))
         if line.in_graph:
             self.lines.grow(line.index, mE)
@@ -803,7 +803,7 @@ class Mapper:
             )
         members: dict[int, list] = {}
         for line in self.lines.items:
-            if not (line.in_graph or line.merged_into is not None):
+            if line.merged_into == -1 or not (line.in_graph or line.merged_into is not None):
                 continue
             members.setdefault(self.lines.resolve(line.index), []).extend(line.detections)
         out = []

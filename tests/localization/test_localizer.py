@@ -161,32 +161,3 @@ def test_positive_part_2x2_matches_the_eigendecomposition():
         expected = (V * np.maximum(w, 0.0)) @ V.T
         np.testing.assert_allclose(positive_part_2x2(A), expected, atol=1e-12)
     np.testing.assert_array_equal(positive_part_2x2(-np.eye(2)), np.zeros((2, 2)))
-
-
-def _step_on_lines(map_sigma):
-    """One frame seeing three map lines (y = -2, y = 2, x = 6) from (5, 0, 0): the position
-    covariance after it, with the map's lines carrying ``map_sigma``."""
-    from semslam.types import Marking, MarkingObservation, SemanticMap
-
-    lines = (((0.0, -2.0), (10.0, -2.0)), ((0.0, 2.0), (10.0, 2.0)), ((6.0, -3.0), (6.0, 3.0)))
-    semantic_map = SemanticMap(markings=tuple(
-        Marking(np.array(a), np.array(b), 0.12, map_sigma) for a, b in lines))
-    seen = tuple(MarkingObservation(np.array(a), np.array(b), 0.12, 1.0, 0.02) for a, b in (
-        ((-2.0, -2.0), (2.0, -2.0)), ((-2.0, 2.0), (2.0, 2.0)), ((1.0, -1.5), (1.0, 1.5))))
-    t = np.array([0.0, 10.0])
-    loc = Localizer(semantic_map, LocalizationConfig(), t, np.zeros(2), np.zeros(2),
-                    np.array([5.0, 0.0, 0.0]))
-    estimate = loc.step(FrameObservations(0.5, markings=seen))
-    assert estimate.associated == 3
-    return estimate.covariance[:2, :2]
-
-
-def test_a_markings_only_frame_is_floored_at_the_map_lines_own_uncertainty():
-    """The map's error is shared by every frame that sees it: the position cannot be known
-    better than the lines it was measured against, whatever they declare."""
-    sharp, blurred = _step_on_lines(0.01), _step_on_lines(0.3)
-    assert np.linalg.eigvalsh(blurred).min() >= 0.3**2 * (1 - 1e-9)
-    assert np.linalg.eigvalsh(sharp).max() < 0.05**2
-    unknown = _step_on_lines(None)  # a map that gives none: the configured sigma
-    assert np.linalg.eigvalsh(unknown).min() >= LocalizationConfig().marking_map_sigma**2 * (
-        1 - 1e-9)

@@ -228,39 +228,6 @@ def test_a_line_detection_is_weighted_by_the_sigma_it_declares():
 
 
 
-def _out_and_back(marking_seen_at):
-    """A car drives 30 m along x at 1 m/s and reverses back; frames every 0.5 s see the
-    painted line y = 2, 4 <= x <= 6 (map frame) at the times in ``marking_seen_at``."""
-    from semslam.types import MarkingObservation
-
-    t = np.arange(0.0, 60.01, 0.1)
-    speed = np.where(t < 30.0, 1.0, -1.0)
-    x = np.where(t < 30.0, t, 60.0 - t)
-    frames = []
-    for ti in np.arange(0.0, 60.01, 0.5):
-        xi = float(np.interp(ti, t, x))
-        seen = any(abs(ti - s) < 1e-9 for s in marking_seen_at)
-        markings = (MarkingObservation(np.array([4.0 - xi, 2.0]), np.array([6.0 - xi, 2.0]),
-                                       0.15, 1.0),) if seen else ()
-        frames.append(FrameObservations(float(ti), markings=markings))
-    return t, speed, frames
-
-
-def test_a_line_gathers_its_support_across_passes():
-    """Seen twice on the way out and twice on the way back, 50 keyframes later: four
-    detections make the line, whichever pass they come from."""
-    t, speed, frames = _out_and_back([4.5, 5.0, 55.0, 55.5])
-    mapper = Mapper(MappingConfig(marking_min_support=4), np.zeros(3), t, speed,
-                    np.zeros_like(t))
-    for frame in frames:
-        mapper.add_frame(frame)
-    markings = mapper.finish().map.markings
-    assert len(markings) == 1
-    ends = sorted([markings[0].a.tolist(), markings[0].b.tolist()])
-    np.testing.assert_allclose(ends, [[4.0, 2.0], [6.0, 2.0]], atol=0.05)
-    assert markings[0].sigma is not None and 0.0 < markings[0].sigma < 0.2
-
-
 def test_mapped_lines_carry_the_uncertainty_of_their_position(small):
     """Each graph line exports the 1-sigma of its position across itself (from its
     marginal); its end points' distances from the true lines are of that size (0.89 times
