@@ -230,7 +230,7 @@ def test_a_line_detection_is_weighted_by_the_sigma_it_declares():
 
 def test_mapped_lines_carry_the_uncertainty_of_their_position(small):
     """Each graph line exports the 1-sigma of its position across itself (from its
-    marginal); its end points' distances from the true lines are of that size (0.89 times
+    marginal); its end points' distances from the true lines are of that size (0.91 times
     it here)."""
     mapped = _map(small, small.noisy).map.markings
     sigma = np.array([m.sigma for m in mapped])
