@@ -166,7 +166,8 @@ class Mapper:
         self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
         self.tag_mismatches: list[tuple] = []  # (k, tag id, family, size) refused
-        self._marginal_fallbacks = 0  # slots whose marginal gtsam could not compute
+        self._marginal_fallbacks = 0  # slots, tags and lines whose marginal gtsam refused
+        # (slots and tags then take the spread of their sightings; lines get no sigma)
         self.lines = LineLandmarks(
             config.marking_angle_tolerance_deg,
             config.marking_distance_gate,
