@@ -1,7 +1,7 @@
 """Slot perception (issue 5): held-out simulated top views, real ps2.0 images, speed.
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
-        [--json out.json] [--points-model OTHER.onnx]
+        [--json out.json] [--points-model OTHER.onnx] [--no-verify]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -200,9 +200,12 @@ def main() -> None:
     parser.add_argument("--json", default=None)
     parser.add_argument("--points-model", type=Path, default=None,
                         help="another marking-point ONNX file (default: the shipped one)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="the marking-point grid alone, without the verifier's second look")
     args = parser.parse_args()
-    perception = TopviewPerception(lines=False, slot_detector=None if args.points_model is None
-                                   else SlotDetector(args.points_model))
+    perception = TopviewPerception(
+        lines=False, slot_detector=SlotDetector(args.points_model, verify=not args.no_verify)
+    )
     sim = simulated(perception, args.worlds, args.per_world)
     dm = sim["dmpr_protocol"]
     real_dm = real_dmpr_protocol(perception)

@@ -8,6 +8,12 @@ marking point lies in it, the probability that it is an L junction, the point's 
 offset inside the cell (0-1) and the cosine and sine of its direction (image coordinates,
 ``atan2(dv, du)``, from the junction into the slot along the separator).
 
+By default each candidate the grid offers above :data:`CANDIDATE_THRESHOLD` gets a second
+look from the verifier CNN (:mod:`semslam.perception.point_verifier`), on a sharper patch
+turned to the point's direction; a point's confidence is then the geometric mean of the
+grid's and the verifier's, kept at :data:`DEFAULT_THRESHOLD` (``verify=False``: the grid
+alone at :data:`GRID_THRESHOLD`).
+
 Non-square images (for example real garage top views of 600 rows x 480 columns) are
 padded with black to a centred square before the resize, so the pixel scale stays the
 same on both axes; the points come back in the original image's pixels. Pixel
@@ -27,12 +33,22 @@ from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
 from semslam.perception import onnx_model
 from semslam.perception.beside import run_beside
+from semslam.perception.point_verifier import PointVerifier
 from semslam.types import JunctionShape
 
-DEFAULT_THRESHOLD = 0.7
-"""Confidence above which a grid cell is a marking point: the best F1 on simulated
-validation worlds 100-149 (neither trained on nor the benchmark's 0-99; see
-``models/marking_points.md``)."""
+GRID_THRESHOLD = 0.7
+"""Grid confidence above which a cell is a marking point when the grid alone decides: the
+best F1 on simulated validation worlds 100-149 (neither trained on nor the benchmark's
+0-99; see ``models/marking_points.md``)."""
+
+CANDIDATE_THRESHOLD = 0.2
+"""Grid confidence above which a cell is a candidate for the verifier: 98.8 % of the
+labelled points of the benchmark's held-out views have a candidate that hits them
+(``tools/train_point_verifier.py``; 96.7 % at :data:`GRID_THRESHOLD`)."""
+
+DEFAULT_THRESHOLD = 0.6
+"""Verified confidence (:func:`verified_confidence`) above which a candidate is a marking
+point: the best F1 on the validation worlds 100-149 (``models/point_verifier.md``)."""
 
 DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
 """The shipped models whose grids are averaged: two runs of the same recipe, whose mean is
@@ -61,8 +77,13 @@ class MarkingPoint:
     confidence: float
 
 
+def verified_confidence(grid: FloatArray, verifier: FloatArray) -> FloatArray:
+    """A candidate's confidence from the grid's and the verifier's: their geometric mean."""
+    return np.sqrt(np.asarray(grid, float) * np.asarray(verifier, float))
+
+
 def decode_grid(
-    grid: np.ndarray, image_size: int, threshold: float = DEFAULT_THRESHOLD
+    grid: np.ndarray, image_size: int, threshold: float = GRID_THRESHOLD
 ) -> list[MarkingPoint]:
     """Marking points from one network output grid.
 
@@ -129,7 +150,10 @@ class MarkingPointDetector:
     Args:
         model_path: an ONNX file, or several with the same input and output shapes whose
             grids are averaged; default the shipped pair :data:`DEFAULT_MODELS`.
-        threshold: minimum confidence of a point.
+        threshold: minimum confidence of a point; default :data:`DEFAULT_THRESHOLD` with
+            the verifier, :data:`GRID_THRESHOLD` without.
+        verify: give each candidate the verifier's second look.
+        verifier_path: the verifier's ONNX file; default the shipped one.
 
     Raises:
         PerceptionError: a model is missing or not loadable, or its input is not
@@ -139,7 +163,9 @@ class MarkingPointDetector:
     def __init__(
         self,
         model_path: str | os.PathLike[str] | list | tuple | None = None,
-        threshold: float = DEFAULT_THRESHOLD,
+        threshold: float | None = None,
+        verify: bool = True,
+        verifier_path: str | os.PathLike[str] | None = None,
     ) -> None:
         if model_path is None:
             paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
@@ -151,6 +177,9 @@ class MarkingPointDetector:
             raise PerceptionError("marking points: no model given")
         self.paths = paths
         self.path = paths[0]
+        self.verifier = PointVerifier(verifier_path) if verify else None
+        if threshold is None:
+            threshold = DEFAULT_THRESHOLD if verify else GRID_THRESHOLD
         self.threshold = float(threshold)
         self._sessions = [onnx_model.load_session(p) for p in paths]
         self._input_names = [sess.get_inputs()[0].name for sess in self._sessions]
@@ -211,14 +240,25 @@ class MarkingPointDetector:
     def detect(self, topview_bgr: np.ndarray) -> list[MarkingPoint]:
         """Marking points in ``topview_bgr`` (uint8 BGR, H x W x 3), in its pixels."""
         g, side, (top, left) = self.grid(topview_bgr)
-        pts = decode_grid(g, side, self.threshold)
+        first = self.threshold if self.verifier is None else CANDIDATE_THRESHOLD
         h, w = topview_bgr.shape[:2]
         out = []
-        for p in pts:
+        for p in decode_grid(g, side, first):
             uv = p.uv - np.array([left, top], float)
             if -0.5 <= uv[0] <= w - 0.5 and -0.5 <= uv[1] <= h - 0.5:
                 out.append(MarkingPoint(uv, p.direction, p.shape, p.confidence))
-        return out
+        if self.verifier is None or not out:
+            return out
+        second = self.verifier.verify(
+            topview_bgr, np.array([p.uv for p in out]), np.array([p.direction for p in out])
+        )
+        conf = verified_confidence([p.confidence for p in out], second)
+        order = np.argsort(-conf, kind="stable")
+        return [
+            MarkingPoint(out[k].uv, out[k].direction, out[k].shape, float(conf[k]))
+            for k in order
+            if conf[k] >= self.threshold
+        ]
 
 
 def shrink(image: np.ndarray, size: int) -> np.ndarray:
@@ -240,11 +280,14 @@ def shrink(image: np.ndarray, size: int) -> np.ndarray:
 
 
 __all__ = [
+    "CANDIDATE_THRESHOLD",
     "DEFAULT_THRESHOLD",
+    "GRID_THRESHOLD",
     "NMS_RADIUS_PX",
     "MarkingPoint",
     "MarkingPointDetector",
     "check_topview",
     "decode_grid",
     "shrink",
+    "verified_confidence",
 ]

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from semslam.geometry import FloatArray
-from semslam.perception.marking_points import DEFAULT_THRESHOLD, MarkingPoint, MarkingPointDetector
+from semslam.perception.marking_points import MarkingPoint, MarkingPointDetector
 from semslam.rig import TopviewSpec
 from semslam.types import JunctionShape, SlotKind, SlotObservation
 
@@ -307,11 +307,12 @@ class SlotDetector:
     def __init__(
         self,
         model_path: str | os.PathLike[str] | None = None,
-        threshold: float = DEFAULT_THRESHOLD,
+        threshold: float | None = None,
         spec: TopviewSpec | None = None,
         rules: SlotRules | None = None,
+        verify: bool = True,
     ) -> None:
-        self.points = MarkingPointDetector(model_path, threshold)
+        self.points = MarkingPointDetector(model_path, threshold, verify)
         self.spec = spec or TopviewSpec()
         self.rules = rules or SlotRules()
 

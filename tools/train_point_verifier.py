@@ -1,0 +1,372 @@
+"""Train the marking-point verifier (a second look at each candidate); export ONNX.
+
+Stages, each re-runnable:
+
+1. mine: simulated top views of worlds the marking-point CNN never trained on; the
+   shipped pair (``MarkingPointDetector``) at the low candidate threshold; each candidate
+   labelled by the ps2.0 hit rule (within 10 px and 30 deg of a labelled point, greedy by
+   confidence, one detection per label), candidates within 10 px of a covered label left
+   out; the turned patches of :func:`semslam.perception.point_verifier.crop_point_patches`
+   cached as ``.npz`` shards in ``--cache`` (training sets: a second patch per candidate,
+   the point moved by up to 3 px and turned by up to 8 deg, as the grid errs);
+2. train: a small CNN, binary cross-entropy, on ``--threads`` CPU threads for at most
+   ``--minutes``; photometric augmentation and left-right mirrors (a mirrored T or L
+   junction is one); fixed seeds;
+3. export: ONNX (opset 17, input ``(N, 64, 64, 3)`` uint8 BGR, output ``(N,)`` float32
+   probabilities), written atomically, checked against torch;
+4. evaluate: on held-out worlds, the ps2.0 point precision and recall of the pair alone
+   (at its threshold) and of the candidates rescored by the verifier, for the ways of
+   combining the two scores and thresholds given; the choice is made on the validation
+   worlds (100-149) and reported on the test worlds (0-99).
+
+Example (the shipped file; ``models/point_verifier.md``)::
+
+    PYTHONPATH=. python tools/train_point_verifier.py --stage mine
+    PYTHONPATH=. python tools/train_point_verifier.py --stage train --minutes 40 \
+        --out semslam/models/point_verifier.onnx
+    PYTHONPATH=. python tools/train_point_verifier.py --stage evaluate \
+        --out semslam/models/point_verifier.onnx
+
+torch is needed here only; the package runs the exported model with onnxruntime.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+CANDIDATE_THRESHOLD = 0.2  # the grid's confidence above which a cell is a candidate
+SETS = {  # name: (world seeds, views per world, sampling seed, jittered copies)
+    "train": (range(2000, 2800), 6, 5001, True),
+    "val": (range(100, 150), 5, 777, False),
+    "test": (range(0, 100), 5, 20261122, False),  # bench_perception.py's views
+}
+CHUNK = 20  # worlds per training shard; an evaluation set is one shard, so that its views
+# are the same as a single ``sample_topviews`` call's (the test set: bench_perception.py's)
+
+
+# ----------------------------------------------------------------------------- mining
+
+
+def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
+    from semslam.evaluation.detection_metrics import match_points
+    from semslam.perception.marking_points import MarkingPointDetector
+    from semslam.perception.point_verifier import crop_point_patches
+    from semslam.simulation.topview_samples import sample_topviews
+
+    name, seeds, per_world, seed, jitter, path = job
+    if os.path.exists(path):
+        return path
+    detector = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD)
+    rng = np.random.default_rng(seed + 17)
+    cols: dict[str, list] = {k: [] for k in
+                             ("patches", "y", "conf", "view", "uv", "dir", "copy")}
+    lab: dict[str, list] = {k: [] for k in ("lpts", "ldir", "locc", "lcount")}
+    for view, s in enumerate(sample_topviews(seeds, per_world, seed)):
+        a = s.annotation
+        pts = detector.detect(s.image)
+        uv = np.array([p.uv for p in pts], float).reshape(-1, 2)
+        dirs = np.array([p.direction for p in pts], float)
+        conf = np.array([p.confidence for p in pts], float)
+        lpts = np.asarray(a.points, float).reshape(-1, 2)
+        ldir = np.asarray(a.directions, float).reshape(-1)
+        locc = np.asarray(a.occluded, bool).reshape(-1)
+        lab["lpts"].append(lpts)
+        lab["ldir"].append(ldir)
+        lab["locc"].append(locc)
+        lab["lcount"].append(len(lpts))
+        if not len(uv):
+            continue
+        y = np.zeros(len(uv), np.int8)
+        match = match_points(uv, dirs, conf, lpts[~locc], ldir[~locc])
+        y[match >= 0] = 1
+        covered = lpts[locc]
+        if len(covered):
+            near = np.linalg.norm(uv[:, None] - covered[None], axis=2).min(axis=1) <= 10.0
+            y[near & (match < 0)] = -1  # a covered label: neither hit nor false
+        copies = [(uv, dirs)]
+        if jitter:
+            shift = np.clip(rng.normal(0.0, 1.5, uv.shape), -3, 3)
+            turn = np.clip(rng.normal(0.0, math.radians(4), len(dirs)), -0.14, 0.14)
+            copies.append((uv + shift, dirs + turn))
+        for c, (u, d) in enumerate(copies):
+            cols["patches"].append(crop_point_patches(s.image, u, d))
+            cols["y"].append(y)
+            cols["conf"].append(conf)
+            cols["view"].append(np.full(len(uv), view, np.int32))
+            cols["uv"].append(uv)
+            cols["dir"].append(dirs)
+            cols["copy"].append(np.full(len(uv), c, np.int8))
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    out["lpts"] = np.concatenate(lab["lpts"])
+    out["ldir"] = np.concatenate(lab["ldir"])
+    out["locc"] = np.concatenate(lab["locc"])
+    out["lcount"] = np.asarray(lab["lcount"], np.int32)
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **out)
+    os.replace(tmp, path)
+    print(f"  {name} shard {Path(path).name}: {len(out['y'])} patches", flush=True)
+    return path
+
+
+def _jobs(name: str, cache: Path) -> list[tuple]:
+    worlds, per_world, seed, jitter = SETS[name]
+    worlds = list(worlds)
+    chunk = CHUNK if jitter else len(worlds)
+    return [
+        (name, worlds[k : k + chunk], per_world, seed + k, jitter,
+         str(cache / f"pv_{name}_{seed}_{per_world}_{worlds[k]:05d}_{chunk}.npz"))
+        for k in range(0, len(worlds), chunk)
+    ]
+
+
+def mine(names: list[str], cache: Path, workers: int) -> None:
+    cache.mkdir(parents=True, exist_ok=True)
+    jobs = [job for name in names for job in _jobs(name, cache)]
+    t0 = time.time()
+    with mp.get_context("spawn").Pool(workers) as pool:
+        for n, _ in enumerate(pool.imap_unordered(_mine_shard, jobs), 1):
+            print(f"mined {n}/{len(jobs)} shards {time.time() - t0:.0f} s", flush=True)
+
+
+def load(name: str, cache: Path) -> dict[str, np.ndarray]:
+    """A mined set; views renumbered across shards."""
+    parts = [np.load(job[-1]) for job in _jobs(name, cache)]
+    out: dict[str, list] = {k: [] for k in parts[0].files}
+    views = 0
+    for p in parts:
+        for k in p.files:
+            out[k].append(p[k] + views if k == "view" else p[k])
+        views += len(p["lcount"])
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+# ----------------------------------------------------------------------------- model
+
+
+def build_model():
+    import torch.nn as nn
+
+    def block(i: int, o: int) -> list:
+        return [nn.Conv2d(i, o, 3, 1, 1, bias=False), nn.BatchNorm2d(o), nn.ReLU()]
+
+    return nn.Sequential(
+        *block(3, 16), nn.MaxPool2d(2),  # 32 x 32
+        *block(16, 24), nn.MaxPool2d(2),  # 16
+        *block(24, 48), nn.MaxPool2d(2),  # 8
+        *block(48, 64), nn.MaxPool2d(2),  # 4: where in the patch matters, so no global pool
+        nn.Flatten(), nn.Linear(64 * 16, 64), nn.ReLU(), nn.Dropout(0.2), nn.Linear(64, 1),
+    )
+
+
+class _Exported:
+    """uint8 BGR NHWC patches in, (N,) probabilities out."""
+
+    @staticmethod
+    def make(net):
+        import torch
+        import torch.nn as nn
+
+        class Wrapper(nn.Module):
+            def __init__(self, net):
+                super().__init__()
+                self.net = net
+
+            def forward(self, x):
+                x = x.permute(0, 3, 1, 2).float() / 127.5 - 1.0
+                return torch.sigmoid(self.net(x)[:, 0])
+
+        return Wrapper(net).eval()
+
+
+def _augment(batch: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Photometric changes per patch and left-right mirrors (uint8 NHWC in and out)."""
+    f = batch.astype(np.float32)
+    n = len(f)
+    mirror = rng.random(n) < 0.5
+    f[mirror] = f[mirror, :, ::-1]
+    f *= rng.uniform(0.8, 1.2, size=(n, 1, 1, 3)).astype(np.float32)  # colour cast
+    mean = f.mean(axis=(1, 2, 3), keepdims=True)
+    gain = rng.uniform(0.5, 1.4, size=(n, 1, 1, 1)).astype(np.float32)
+    light = rng.uniform(0.55, 1.45, size=(n, 1, 1, 1)).astype(np.float32)
+    f = f * gain + mean * (light - gain)  # contrast, brightness
+    grey = rng.random(n) < 0.1
+    f[grey] = f[grey].mean(axis=3, keepdims=True)
+    noisy = rng.random(n) < 0.5
+    f[noisy] += rng.standard_normal(f[noisy].shape, dtype=np.float32) * np.float32(
+        rng.uniform(1, 10))
+    out = np.clip(f, 0, 255).astype(np.uint8)
+    for k in np.nonzero(rng.random(n) < 0.25)[0]:
+        out[k] = cv2.GaussianBlur(out[k], (0, 0), rng.uniform(0.3, 1.2))
+    for k in np.nonzero(rng.random(n) < 0.2)[0]:
+        ok, buf = cv2.imencode(".jpg", out[k], [cv2.IMWRITE_JPEG_QUALITY,
+                                                int(rng.integers(25, 90))])
+        out[k] = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def train(args: argparse.Namespace) -> None:
+    import torch
+
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    rng = np.random.default_rng(args.seed)
+    data = load("train", args.cache)
+    keep = data["y"] >= 0
+    patches, y = data["patches"][keep], data["y"][keep].astype(np.float32)
+    print(f"{len(y)} training patches, {int(y.sum())} positive", flush=True)
+    net = build_model()
+    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+    budget = args.minutes * 60.0
+    t0 = time.time()
+    step, loss_sum = 0, 0.0
+    while True:
+        progress = (time.time() - t0) / budget
+        if progress >= 1.0 or step >= args.steps:
+            break
+        progress = max(progress, step / args.steps)
+        warm = min(1.0, (progress + 0.002) / 0.03)
+        for group in opt.param_groups:
+            group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
+        idx = rng.integers(0, len(y), args.batch)
+        x = torch.from_numpy(_augment(patches[idx], rng)).permute(0, 3, 1, 2).float()
+        x = x / 127.5 - 1.0
+        net.train()
+        logit = net(x)[:, 0]
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(logit, torch.from_numpy(y[idx]))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        loss_sum += float(loss)
+        if step % 200 == 0:
+            print(f"  step {step} loss {loss_sum / 200:.4f} {time.time() - t0:.0f} s", flush=True)
+            loss_sum = 0.0
+    print(f"training time {time.time() - t0:.0f} s, {step} steps", flush=True)
+    torch.save(net.state_dict(), args.cache / "point_verifier_last.pt")
+    export_onnx(net, args.out)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB)", flush=True)
+
+
+def export_onnx(net, out: Path) -> None:
+    import onnx
+    import onnxruntime as ort
+    import torch
+
+    from semslam.perception.point_verifier import PATCH_PX
+
+    wrapper = _Exported.make(net)
+    dummy = torch.zeros(2, PATCH_PX, PATCH_PX, 3, dtype=torch.uint8)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.onnx.export(wrapper, (dummy,), str(tmp), input_names=["patches"],
+                      output_names=["probability"], dynamic_axes={"patches": {0: "n"},
+                                                                  "probability": {0: "n"}},
+                      opset_version=17, dynamo=False)
+    model = onnx.load(str(tmp))
+    onnx.checker.check_model(model)
+    model.doc_string = (
+        f"Marking-point verifier. input patches: (N, {PATCH_PX}, {PATCH_PX}, 3) uint8 BGR, "
+        "from semslam.perception.point_verifier.crop_point_patches. output probability: "
+        "(N,) float32, that the patch centre is a marking point pointing up"
+    )
+    onnx.save(model, str(tmp))
+    sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
+    x = np.random.default_rng(0).integers(0, 255, size=(5, PATCH_PX, PATCH_PX, 3), dtype=np.uint8)
+    with torch.no_grad():
+        ref = wrapper(torch.from_numpy(x)).numpy()
+    err = float(np.abs(ref - sess.run(None, {"patches": x})[0]).max())
+    if err > 1e-4:
+        raise SystemExit(f"ONNX export differs from torch by {err}")
+    os.replace(tmp, out)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+COMBINE = {
+    "grid": lambda c, v: c,
+    "verifier": lambda c, v: v,
+    "geometric mean": lambda c, v: np.sqrt(c * v),
+}
+
+
+def point_scores(data: dict[str, np.ndarray], score: np.ndarray, threshold: float) -> dict:
+    """ps2.0 point precision / recall when the candidates keep ``score >= threshold``
+    (candidates near covered labels neither hit nor false; the matching greedy by score)."""
+    from semslam.evaluation.detection_metrics import match_points
+
+    base = data["copy"] == 0
+    tp = fp = fn = 0
+    starts = np.concatenate([[0], np.cumsum(data["lcount"])])
+    view_of = data["view"][base]
+    for v in range(len(data["lcount"])):
+        sl = slice(starts[v], starts[v + 1])
+        lpts, ldir, locc = data["lpts"][sl], data["ldir"][sl], data["locc"][sl]
+        k = np.nonzero(base)[0][view_of == v]
+        k = k[(score[k] >= threshold) & (data["y"][k] >= 0)]
+        match = match_points(data["uv"][k], data["dir"][k], score[k], lpts[~locc], ldir[~locc])
+        hits = int((match >= 0).sum())
+        tp, fp, fn = tp + hits, fp + len(k) - hits, fn + int((~locc).sum()) - hits
+    p, r = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
+    return {"precision": round(p, 4), "recall": round(r, 4),
+            "f1": round(2 * p * r / max(p + r, 1e-12), 4), "tp_fp_fn": [tp, fp, fn]}
+
+
+def evaluate(args: argparse.Namespace) -> dict:
+    from semslam.perception.marking_points import DEFAULT_THRESHOLD
+    from semslam.perception.point_verifier import PointVerifier
+
+    verifier = PointVerifier(args.out)
+    sets = {name: load(name, args.cache) for name in ("val", "test")}
+    probs = {}
+    for name, data in sets.items():
+        probs[name] = np.concatenate([verifier.probabilities(data["patches"][k : k + 256])
+                                      for k in range(0, len(data["y"]), 256)])
+    res: dict = {"grid alone at its threshold": {
+        name: point_scores(d, d["conf"], DEFAULT_THRESHOLD) for name, d in sets.items()}}
+    best = None
+    for how, f in COMBINE.items():
+        for t in np.arange(0.3, 0.96, 0.05):
+            val = point_scores(sets["val"], f(sets["val"]["conf"], probs["val"]), t)
+            if best is None or val["f1"] > best[0]["f1"]:
+                best = (val, how, round(float(t), 2))
+    val, how, t = best
+    test = point_scores(sets["test"], COMBINE[how](sets["test"]["conf"], probs["test"]), t)
+    res["best on validation"] = {"combine": how, "threshold": t, "val": val, "test": test}
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--stage", choices=("mine", "train", "evaluate"), required=True)
+    p.add_argument("--sets", default="train,val,test", help="mine: which sets")
+    p.add_argument("--cache", type=Path, default=Path("/tmp/semslam_pv_cache"))
+    p.add_argument("--out", type=Path, default=Path("semslam/models/point_verifier.onnx"))
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="torch threads")
+    p.add_argument("--minutes", type=float, default=40.0)
+    p.add_argument("--steps", type=int, default=1_000_000)
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--seed", type=int, default=1)
+    args = p.parse_args(argv)
+    if args.stage == "mine":
+        mine(args.sets.split(","), args.cache, args.workers)
+    elif args.stage == "train":
+        train(args)
+    else:
+        print(json.dumps(evaluate(args), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
