@@ -47,9 +47,11 @@ import numpy as np
 CANDIDATE_THRESHOLD = 0.2  # the grid's confidence above which a cell is a candidate
 SETS = {  # name: (world seeds, views per world, sampling seed, jittered copies)
     "train": (range(2000, 2800), 6, 5001, True),
+    "train2": (range(2800, 4000), 6, 6001, True),
     "val": (range(100, 150), 5, 777, False),
     "test": (range(0, 100), 5, 20261122, False),  # bench_perception.py's views
 }
+REFINE_PX = 20.0  # a labelled point this near a candidate is the one it should move to
 CHUNK = 20  # worlds per training shard; an evaluation set is one shard, so that its views
 # are the same as a single ``sample_topviews`` call's (the test set: bench_perception.py's)
 
@@ -66,10 +68,11 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
     name, seeds, per_world, seed, jitter, path = job
     if os.path.exists(path):
         return path
-    detector = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD)
+    detector = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD, verify=False)
     rng = np.random.default_rng(seed + 17)
     cols: dict[str, list] = {k: [] for k in
-                             ("patches", "y", "conf", "view", "uv", "dir", "copy")}
+                             ("patches", "y", "y_near", "target", "conf", "view", "uv",
+                              "dir", "copy")}
     lab: dict[str, list] = {k: [] for k in ("lpts", "ldir", "locc", "lcount")}
     for view, s in enumerate(sample_topviews(seeds, per_world, seed)):
         a = s.annotation
@@ -89,17 +92,25 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
         y = np.zeros(len(uv), np.int8)
         match = match_points(uv, dirs, conf, lpts[~locc], ldir[~locc])
         y[match >= 0] = 1
+        near_label = assign_nearby(uv, conf, lpts[~locc])
+        y_near = (near_label >= 0).astype(np.int8)
         covered = lpts[locc]
         if len(covered):
             near = np.linalg.norm(uv[:, None] - covered[None], axis=2).min(axis=1) <= 10.0
             y[near & (match < 0)] = -1  # a covered label: neither hit nor false
+            near = np.linalg.norm(uv[:, None] - covered[None], axis=2).min(axis=1) <= REFINE_PX
+            y_near[near & (near_label < 0)] = -1
         copies = [(uv, dirs)]
         if jitter:
             shift = np.clip(rng.normal(0.0, 1.5, uv.shape), -3, 3)
             turn = np.clip(rng.normal(0.0, math.radians(4), len(dirs)), -0.14, 0.14)
             copies.append((uv + shift, dirs + turn))
+        target_pts = lpts[~locc][np.maximum(near_label, 0)] if (~locc).any() else uv
+        target_dir = ldir[~locc][np.maximum(near_label, 0)] if (~locc).any() else dirs
         for c, (u, d) in enumerate(copies):
             cols["patches"].append(crop_point_patches(s.image, u, d))
+            cols["target"].append(refinement_target(u, d, target_pts, target_dir))
+            cols["y_near"].append(y_near)
             cols["y"].append(y)
             cols["conf"].append(conf)
             cols["view"].append(np.full(len(uv), view, np.int32))
@@ -116,6 +127,36 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
     os.replace(tmp, path)
     print(f"  {name} shard {Path(path).name}: {len(out['y'])} patches", flush=True)
     return path
+
+
+def assign_nearby(uv: np.ndarray, conf: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """For each candidate the index of the labelled point it should move to, or -1: greedy
+    one-to-one by decreasing confidence, the nearest free label within ``REFINE_PX`` in any
+    direction."""
+    out = np.full(len(uv), -1, int)
+    if not len(uv) or not len(labels):
+        return out
+    d = np.linalg.norm(uv[:, None] - labels[None], axis=2)
+    free = np.ones(len(labels), bool)
+    for i in np.argsort(-conf, kind="stable"):
+        j = np.nonzero(free & (d[i] <= REFINE_PX))[0]
+        if len(j):
+            out[i] = j[np.argmin(d[i, j])]
+            free[out[i]] = False
+    return out
+
+
+def refinement_target(uv: np.ndarray, dirs: np.ndarray, to_uv: np.ndarray,
+                      to_dirs: np.ndarray) -> np.ndarray:
+    """(N, 4) float32: the move to ``to_uv`` along the patch's right and up, in top-view
+    pixels, and the cosine and sine of the turn to ``to_dirs`` (positive: towards the
+    patch's right); see :func:`semslam.perception.point_verifier.refined`."""
+    dx, dy = np.cos(dirs), np.sin(dirs)
+    move = to_uv - uv
+    along_right = move[:, 0] * -dy + move[:, 1] * dx
+    along_up = move[:, 0] * dx + move[:, 1] * dy
+    turn = to_dirs - dirs
+    return np.stack([along_right, along_up, np.cos(turn), np.sin(turn)], 1).astype(np.float32)
 
 
 def _jobs(name: str, cache: Path) -> list[tuple]:
@@ -153,7 +194,13 @@ def load(name: str, cache: Path) -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------- model
 
 
+MOVE_SCALE = 10.0  # px: the network's move outputs are in these units
+
+
 def build_model():
+    """Outputs per patch: the logit that a labelled point lies within ``REFINE_PX``, the
+    move to it along the patch's right and up (``MOVE_SCALE`` px units), and the turn to
+    its direction (cosine, sine; normalised in the export)."""
     import torch.nn as nn
 
     def block(i: int, o: int) -> list:
@@ -164,12 +211,13 @@ def build_model():
         *block(16, 24), nn.MaxPool2d(2),  # 16
         *block(24, 48), nn.MaxPool2d(2),  # 8
         *block(48, 64), nn.MaxPool2d(2),  # 4: where in the patch matters, so no global pool
-        nn.Flatten(), nn.Linear(64 * 16, 64), nn.ReLU(), nn.Dropout(0.2), nn.Linear(64, 1),
+        nn.Flatten(), nn.Linear(64 * 16, 64), nn.ReLU(), nn.Dropout(0.2), nn.Linear(64, 5),
     )
 
 
 class _Exported:
-    """uint8 BGR NHWC patches in, (N,) probabilities out."""
+    """uint8 BGR NHWC patches in; (N, 5) out: probability, move right and up (top-view
+    px), cosine and sine of the turn."""
 
     @staticmethod
     def make(net):
@@ -183,17 +231,24 @@ class _Exported:
 
             def forward(self, x):
                 x = x.permute(0, 3, 1, 2).float() / 127.5 - 1.0
-                return torch.sigmoid(self.net(x)[:, 0])
+                y = self.net(x)
+                turn = y[:, 3:5] / torch.clamp(y[:, 3:5].norm(dim=1, keepdim=True), min=1e-6)
+                return torch.cat([torch.sigmoid(y[:, 0:1]), y[:, 1:3] * MOVE_SCALE, turn], 1)
 
         return Wrapper(net).eval()
 
 
-def _augment(batch: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Photometric changes per patch and left-right mirrors (uint8 NHWC in and out)."""
+def _augment(batch: np.ndarray, target: np.ndarray,
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Photometric changes per patch and left-right mirrors (uint8 NHWC in and out; a
+    mirror negates the move to the right and the turn's sine)."""
     f = batch.astype(np.float32)
+    target = target.copy()
     n = len(f)
     mirror = rng.random(n) < 0.5
     f[mirror] = f[mirror, :, ::-1]
+    target[mirror, 0] *= -1.0
+    target[mirror, 3] *= -1.0
     f *= rng.uniform(0.8, 1.2, size=(n, 1, 1, 3)).astype(np.float32)  # colour cast
     mean = f.mean(axis=(1, 2, 3), keepdims=True)
     gain = rng.uniform(0.5, 1.4, size=(n, 1, 1, 1)).astype(np.float32)
@@ -211,7 +266,22 @@ def _augment(batch: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         ok, buf = cv2.imencode(".jpg", out[k], [cv2.IMWRITE_JPEG_QUALITY,
                                                 int(rng.integers(25, 90))])
         out[k] = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-    return out
+    return out, target
+
+
+def _loss(out, y, target):
+    """Binary cross-entropy on the logit; on the positives also the move (smooth L1 in
+    ``MOVE_SCALE`` units) and the turn (squared error of cosine and sine)."""
+    import torch
+    import torch.nn.functional as nnf
+
+    loss = nnf.binary_cross_entropy_with_logits(out[:, 0], y)
+    pos = y > 0.5
+    if bool(pos.any()):
+        move = nnf.smooth_l1_loss(out[pos, 1:3], target[pos, 0:2] / MOVE_SCALE)
+        turn = ((out[pos, 3:5] - target[pos, 2:4]) ** 2).sum(1).mean()
+        loss = loss + move + turn
+    return loss if torch.isfinite(loss) else loss * 0.0
 
 
 def train(args: argparse.Namespace) -> None:
@@ -220,9 +290,11 @@ def train(args: argparse.Namespace) -> None:
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    data = load("train", args.cache)
-    keep = data["y"] >= 0
-    patches, y = data["patches"][keep], data["y"][keep].astype(np.float32)
+    parts = [load(name, args.cache) for name in args.train_sets.split(",")]
+    data = {k: np.concatenate([p[k] for p in parts]) for k in ("patches", "y_near", "target")}
+    keep = data["y_near"] >= 0
+    patches, y = data["patches"][keep], data["y_near"][keep].astype(np.float32)
+    target = data["target"][keep]
     print(f"{len(y)} training patches, {int(y.sum())} positive", flush=True)
     net = build_model()
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
@@ -238,16 +310,15 @@ def train(args: argparse.Namespace) -> None:
         for group in opt.param_groups:
             group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
         idx = rng.integers(0, len(y), args.batch)
-        x = torch.from_numpy(_augment(patches[idx], rng)).permute(0, 3, 1, 2).float()
-        x = x / 127.5 - 1.0
+        xb, tb = _augment(patches[idx], target[idx], rng)
+        x = torch.from_numpy(xb).permute(0, 3, 1, 2).float() / 127.5 - 1.0
         net.train()
-        logit = net(x)[:, 0]
-        loss = torch.nn.functional.binary_cross_entropy_with_logits(logit, torch.from_numpy(y[idx]))
+        loss = _loss(net(x), torch.from_numpy(y[idx]), torch.from_numpy(tb))
         opt.zero_grad()
         loss.backward()
         opt.step()
         step += 1
-        loss_sum += float(loss)
+        loss_sum += float(loss.detach())
         if step % 200 == 0:
             print(f"  step {step} loss {loss_sum / 200:.4f} {time.time() - t0:.0f} s", flush=True)
             loss_sum = 0.0
@@ -268,15 +339,17 @@ def export_onnx(net, out: Path) -> None:
     dummy = torch.zeros(2, PATCH_PX, PATCH_PX, 3, dtype=torch.uint8)
     tmp = out.with_name(out.name + ".tmp")
     torch.onnx.export(wrapper, (dummy,), str(tmp), input_names=["patches"],
-                      output_names=["probability"], dynamic_axes={"patches": {0: "n"},
-                                                                  "probability": {0: "n"}},
+                      output_names=["verdict"], dynamic_axes={"patches": {0: "n"},
+                                                              "verdict": {0: "n"}},
                       opset_version=17, dynamo=False)
     model = onnx.load(str(tmp))
     onnx.checker.check_model(model)
     model.doc_string = (
         f"Marking-point verifier. input patches: (N, {PATCH_PX}, {PATCH_PX}, 3) uint8 BGR, "
-        "from semslam.perception.point_verifier.crop_point_patches. output probability: "
-        "(N,) float32, that the patch centre is a marking point pointing up"
+        "from semslam.perception.point_verifier.crop_point_patches. output verdict: "
+        "(N, 5) float32: probability that a marking point lies within 20 px of the patch "
+        "centre; the move to it along the patch's right and up, top-view px; cosine and sine "
+        "of the turn from up to its direction (positive towards the right)"
     )
     onnx.save(model, str(tmp))
     sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
@@ -299,11 +372,18 @@ COMBINE = {
 }
 
 
-def point_scores(data: dict[str, np.ndarray], score: np.ndarray, threshold: float) -> dict:
-    """ps2.0 point precision / recall when the candidates keep ``score >= threshold``
-    (candidates near covered labels neither hit nor false; the matching greedy by score)."""
+def point_scores(data: dict[str, np.ndarray], score: np.ndarray, threshold: float,
+                 uv: np.ndarray | None = None, dirs: np.ndarray | None = None) -> dict:
+    """ps2.0 point precision / recall when the candidates keep ``score >= threshold``, at
+    their own places or at ``uv`` / ``dirs`` (then the weaker of two within 10 px is
+    dropped, as the detector does); candidates near covered labels neither hit nor false,
+    the matching greedy by score."""
     from semslam.evaluation.detection_metrics import match_points
+    from semslam.perception.marking_points import NMS_RADIUS_PX, suppress_close
 
+    moved = uv is not None
+    uv = data["uv"] if uv is None else uv
+    dirs = data["dir"] if dirs is None else dirs
     base = data["copy"] == 0
     tp = fp = fn = 0
     starts = np.concatenate([[0], np.cumsum(data["lcount"])])
@@ -313,7 +393,9 @@ def point_scores(data: dict[str, np.ndarray], score: np.ndarray, threshold: floa
         lpts, ldir, locc = data["lpts"][sl], data["ldir"][sl], data["locc"][sl]
         k = np.nonzero(base)[0][view_of == v]
         k = k[(score[k] >= threshold) & (data["y"][k] >= 0)]
-        match = match_points(data["uv"][k], data["dir"][k], score[k], lpts[~locc], ldir[~locc])
+        if moved and len(k):
+            k = k[suppress_close(uv[k], score[k], NMS_RADIUS_PX)]
+        match = match_points(uv[k], dirs[k], score[k], lpts[~locc], ldir[~locc])
         hits = int((match >= 0).sum())
         tp, fp, fn = tp + hits, fp + len(k) - hits, fn + int((~locc).sum()) - hits
     p, r = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
@@ -322,33 +404,42 @@ def point_scores(data: dict[str, np.ndarray], score: np.ndarray, threshold: floa
 
 
 def evaluate(args: argparse.Namespace) -> dict:
-    from semslam.perception.marking_points import DEFAULT_THRESHOLD
-    from semslam.perception.point_verifier import PointVerifier
+    """The grid alone, then the verifier's score combined with the grid's each way, with
+    and without its move and turn; each way's threshold chosen by F1 on the validation
+    worlds, reported on the test worlds."""
+    from semslam.perception.marking_points import GRID_THRESHOLD
+    from semslam.perception.point_verifier import PointVerifier, refined
 
     verifier = PointVerifier(args.out)
     sets = {name: load(name, args.cache) for name in ("val", "test")}
-    probs = {}
+    verdicts, placed = {}, {}
     for name, data in sets.items():
-        probs[name] = np.concatenate([verifier.probabilities(data["patches"][k : k + 256])
-                                      for k in range(0, len(data["y"]), 256)])
-    res: dict = {"grid alone at its threshold": {
-        name: point_scores(d, d["conf"], DEFAULT_THRESHOLD) for name, d in sets.items()}}
-    best = None
-    for how, f in COMBINE.items():
-        for t in np.arange(0.3, 0.96, 0.05):
-            val = point_scores(sets["val"], f(sets["val"]["conf"], probs["val"]), t)
-            if best is None or val["f1"] > best[0]["f1"]:
-                best = (val, how, round(float(t), 2))
-    val, how, t = best
-    test = point_scores(sets["test"], COMBINE[how](sets["test"]["conf"], probs["test"]), t)
-    res["best on validation"] = {"combine": how, "threshold": t, "val": val, "test": test}
+        verdicts[name] = np.concatenate([verifier.verdicts(data["patches"][k : k + 256])
+                                         for k in range(0, len(data["y"]), 256)])
+        placed[name] = refined(data["uv"], data["dir"], verdicts[name])
+    res: dict = {f"grid alone at {GRID_THRESHOLD}": {
+        name: point_scores(d, d["conf"], GRID_THRESHOLD) for name, d in sets.items()}}
+    for move in (False, True):
+        for how, f in COMBINE.items():
+            best = None
+            for t in np.arange(0.2, 0.96, 0.05):
+                score = f(sets["val"]["conf"], verdicts["val"][:, 0])
+                val = point_scores(sets["val"], score, t, *(placed["val"] if move else ()))
+                if best is None or val["f1"] > best[0]["f1"]:
+                    best = (val, round(float(t), 2))
+            val, t = best
+            score = f(sets["test"]["conf"], verdicts["test"][:, 0])
+            test = point_scores(sets["test"], score, t, *(placed["test"] if move else ()))
+            res[f"{how}{', moved' if move else ''}"] = {"threshold": t, "val": val,
+                                                        "test": test}
     return res
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--stage", choices=("mine", "train", "evaluate"), required=True)
-    p.add_argument("--sets", default="train,val,test", help="mine: which sets")
+    p.add_argument("--sets", default="train,train2,val,test", help="mine: which sets")
+    p.add_argument("--train-sets", default="train,train2", help="train: on which sets")
     p.add_argument("--cache", type=Path, default=Path("/tmp/semslam_pv_cache"))
     p.add_argument("--out", type=Path, default=Path("semslam/models/point_verifier.onnx"))
     p.add_argument("--workers", type=int, default=2)
@@ -364,7 +455,8 @@ def main(argv: list[str] | None = None) -> int:
     elif args.stage == "train":
         train(args)
     else:
-        print(json.dumps(evaluate(args), indent=1))
+        for name, r in evaluate(args).items():
+            print(name, json.dumps(r))
     return 0
 
 

@@ -46,7 +46,7 @@ CANDIDATE_THRESHOLD = 0.2
 labelled points of the benchmark's held-out views have a candidate that hits them
 (``tools/train_point_verifier.py``; 96.7 % at :data:`GRID_THRESHOLD`)."""
 
-DEFAULT_THRESHOLD = 0.6
+DEFAULT_THRESHOLD = 0.55
 """Verified confidence (:func:`verified_confidence`) above which a candidate is a marking
 point: the best F1 on the validation worlds 100-149 (``models/point_verifier.md``)."""
 
@@ -82,6 +82,17 @@ def verified_confidence(grid: FloatArray, verifier: FloatArray) -> FloatArray:
     return np.sqrt(np.asarray(grid, float) * np.asarray(verifier, float))
 
 
+def suppress_close(uv: FloatArray, confidence: FloatArray, radius: float) -> list[int]:
+    """Indices of the points to keep, by decreasing confidence: a point closer than
+    ``radius`` pixels to a stronger kept one is dropped."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    kept: list[int] = []
+    for k in np.argsort(-np.asarray(confidence, float), kind="stable"):
+        if all(math.hypot(uv[k, 0] - uv[m, 0], uv[k, 1] - uv[m, 1]) >= radius for m in kept):
+            kept.append(int(k))
+    return kept
+
+
 def decode_grid(
     grid: np.ndarray, image_size: int, threshold: float = GRID_THRESHOLD
 ) -> list[MarkingPoint]:
@@ -114,12 +125,8 @@ def decode_grid(
     v = (rows + np.clip(g[3, rows, cols], 0.0, 1.0)) * cell - 0.5
     direction = np.arctan2(g[5, rows, cols], g[4, rows, cols])
     is_l = g[1, rows, cols] >= 0.5
-    order = np.argsort(-conf, kind="stable")
     radius = NMS_RADIUS_PX * float(image_size) / 600.0
-    kept: list[int] = []
-    for k in order:
-        if all(math.hypot(u[k] - u[m], v[k] - v[m]) >= radius for m in kept):
-            kept.append(int(k))
+    kept = suppress_close(np.stack([u, v], 1), conf, radius)
     return [
         MarkingPoint(
             np.array([u[k], v[k]]),
@@ -249,15 +256,17 @@ class MarkingPointDetector:
                 out.append(MarkingPoint(uv, p.direction, p.shape, p.confidence))
         if self.verifier is None or not out:
             return out
-        second = self.verifier.verify(
+        prob, uv, direction = self.verifier.verify(
             topview_bgr, np.array([p.uv for p in out]), np.array([p.direction for p in out])
         )
-        conf = verified_confidence([p.confidence for p in out], second)
-        order = np.argsort(-conf, kind="stable")
+        conf = verified_confidence([p.confidence for p in out], prob)
+        inside = (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5) & (uv[:, 1] >= -0.5) & (
+            uv[:, 1] <= h - 0.5)
+        keep = np.nonzero((conf >= self.threshold) & inside)[0]
+        # two candidates the verifier moved onto the same point: the stronger stays
+        kept = keep[suppress_close(uv[keep], conf[keep], NMS_RADIUS_PX * side / 600.0)]
         return [
-            MarkingPoint(out[k].uv, out[k].direction, out[k].shape, float(conf[k]))
-            for k in order
-            if conf[k] >= self.threshold
+            MarkingPoint(uv[k], float(direction[k]), out[k].shape, float(conf[k])) for k in kept
         ]
 
 
@@ -289,5 +298,6 @@ __all__ = [
     "check_topview",
     "decode_grid",
     "shrink",
+    "suppress_close",
     "verified_confidence",
 ]

@@ -3,20 +3,21 @@
 The marking-point CNN (:mod:`semslam.perception.marking_points`) sees the top view shrunk
 to 256 px and scores every grid cell. Its confident mistakes are few kinds of place: the
 back corners of a row (a separator meeting the rear line looks like an entrance T),
-hazard stripes, car edges and the image border; and a third of its misses are true points
-it scored just under its threshold (``models/marking_points.md``). The verifier looks
-again at each candidate the grid offers above a low threshold, in a patch cut from the
-full-resolution top view around the point and turned so that the point's direction (its
-separator, into the slot) points up, and returns the probability that the candidate is a
-marking point where the grid put it, pointing where the grid says (the ps2.0 hit: within
-10 px and 30 deg).
+hazard stripes, car edges and the image border; a third of its misses are true points it
+scored just under its threshold, and most of the rest it placed 10-20 px off or turned
+more than 30 deg (``models/marking_points.md``). The verifier looks again at each
+candidate the grid offers above a low threshold, in a patch cut from the full-resolution
+top view around the point and turned so that the point's direction (its separator, into
+the slot) points up. It returns the probability that a marking point lies within 20 px of
+the candidate, and where exactly: the move to it and the turn to its direction.
 
 Patch: :data:`PATCH_PX` square, uint8 BGR, covering :data:`SPAN_PX` top-view pixels
 (1.6 m in a ps2.0 view) centred on the point; pixels outside the view are black, as the
 ego box is. The model (``models/point_verifier.onnx``, trained by
 ``tools/train_point_verifier.py`` on the shipped marking-point pair's candidates in
 simulated views; see ``models/point_verifier.md``) takes ``(N, PATCH_PX, PATCH_PX, 3)``
-uint8 and returns ``(N,)`` probabilities.
+uint8 and returns ``(N, 5)``: the probability, the move along the patch's right and up in
+top-view pixels, and the cosine and sine of the turn (:func:`refined`).
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ def crop_point_patches(
 
     Returns:
         (N, PATCH_PX, PATCH_PX, 3) uint8; patch pixel ``(x, y)`` shows the view at
-        ``uv + s (x - c) r - s (y - c) d`` with ``s = SPAN_PX / PATCH_PX``,
+        ``uv + s (x - c) r - s (y - c) d`` (bilinear) with ``s = SPAN_PX / PATCH_PX``,
         ``c = (PATCH_PX - 1) / 2``, ``d`` the direction and ``r = (-d_v, d_u)``.
     """
     import cv2
@@ -81,47 +82,91 @@ def crop_point_patches(
     return out
 
 
+def refined(uv: np.ndarray, directions: np.ndarray, verdicts: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Points and directions moved and turned as the verifier says.
+
+    Args:
+        uv: (N, 2) pixels; directions: (N,) radians (image coordinates), as cropped.
+        verdicts: (N, 5) from :meth:`PointVerifier.verdicts`.
+
+    Returns:
+        (N, 2) points ``uv + right * r + up * d`` (``d`` the direction, ``r`` the patch's
+        right, as in :func:`crop_point_patches`) and (N,) directions turned by
+        ``atan2(sine, cosine)``, wrapped to (-pi, pi].
+    """
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    a = np.asarray(directions, float)
+    v = np.asarray(verdicts, float).reshape(-1, 5)
+    dx, dy = np.cos(a), np.sin(a)
+    moved = uv + v[:, 1:2] * np.stack([-dy, dx], 1) + v[:, 2:3] * np.stack([dx, dy], 1)
+    turned = np.angle(np.exp(1j * (a + np.arctan2(v[:, 4], v[:, 3]))))
+    return moved, turned
+
+
 class PointVerifier:
     """The verifier CNN on one onnxruntime thread.
 
     Raises:
         PerceptionError: the model is missing or not loadable, or does not take
-            ``(N, PATCH_PX, PATCH_PX, 3)`` uint8.
+            ``(N, PATCH_PX, PATCH_PX, 3)`` uint8 and return ``(N, 5)``.
     """
 
     def __init__(self, model_path: str | os.PathLike[str] | None = None) -> None:
         self.path = Path(model_path) if model_path else onnx_model.model_path(DEFAULT_MODEL)
         self._session = onnx_model.load_session(self.path)
         inp = self._session.get_inputs()[0]
-        if list(inp.shape)[1:] != [PATCH_PX, PATCH_PX, 3] or inp.type != "tensor(uint8)":
+        out = self._session.get_outputs()[0]
+        if (
+            list(inp.shape)[1:] != [PATCH_PX, PATCH_PX, 3]
+            or inp.type != "tensor(uint8)"
+            or len(out.shape) != 2
+            or out.shape[1] != 5
+        ):
             raise PerceptionError(
-                f"{self.path}: expected input (N, {PATCH_PX}, {PATCH_PX}, 3) uint8, "
-                f"got {inp.shape} {inp.type}"
+                f"{self.path}: expected input (N, {PATCH_PX}, {PATCH_PX}, 3) uint8 and output "
+                f"(N, 5), got {inp.shape} {inp.type} and {out.shape}"
             )
         self._input = inp.name
 
-    def probabilities(self, patches: np.ndarray) -> np.ndarray:
-        """(N,) probabilities that each patch's centre is a marking point pointing up."""
+    def _run(self, x: np.ndarray) -> np.ndarray:
+        out = self._session.run(None, {self._input: x})[0].astype(float).reshape(-1, 5)
+        out[:, 0] = np.clip(out[:, 0], 0.0, 1.0)
+        return out
+
+    def verdicts(self, patches: np.ndarray) -> np.ndarray:
+        """(N, 5) per patch: the probability that a marking point lies near its centre
+        (within 20 px), the move to it along the patch's right and up (top-view pixels),
+        and the cosine and sine of the turn from up to its direction (positive towards
+        the right)."""
         x = np.ascontiguousarray(patches, dtype=np.uint8)
         if x.ndim != 4 or x.shape[1:] != (PATCH_PX, PATCH_PX, 3):
             raise PerceptionError(
                 f"point verifier: expected patches (N, {PATCH_PX}, {PATCH_PX}, 3), got {x.shape}"
             )
-        if not len(x):
-            return np.zeros(0)
+        if len(x) < 2:
+            return self._run(x) if len(x) else np.zeros((0, 5))
         # two halves, the second beside the first: each patch is scored alone, so the
         # halves give what the whole batch gives, on both cores
         half = (len(x) + 1) // 2
-        rest = x[half:]
-        second = run_beside(self._session.run, None, {self._input: rest}) if len(rest) else None
-        parts = [self._session.run(None, {self._input: x[:half]})[0]]
-        if second is not None:
-            parts.append(second.result()[0])
-        return np.clip(np.concatenate(parts).astype(float).reshape(-1), 0.0, 1.0)
+        second = run_beside(self._run, x[half:])
+        return np.concatenate([self._run(x[:half]), second.result()])
 
-    def verify(self, topview_bgr: np.ndarray, uv: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """(N,) probabilities for points ``uv`` with ``directions`` in ``topview_bgr``."""
-        return self.probabilities(crop_point_patches(topview_bgr, uv, directions))
+    def verify(
+        self, topview_bgr: np.ndarray, uv: np.ndarray, directions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For points ``uv`` with ``directions`` in ``topview_bgr``: (N,) probabilities,
+        (N, 2) points and (N,) directions as the verifier places them (:func:`refined`)."""
+        v = self.verdicts(crop_point_patches(topview_bgr, uv, directions))
+        moved, turned = refined(uv, directions, v)
+        return v[:, 0], moved, turned
 
 
-__all__ = ["DEFAULT_MODEL", "PATCH_PX", "SPAN_PX", "PointVerifier", "crop_point_patches"]
+__all__ = [
+    "DEFAULT_MODEL",
+    "PATCH_PX",
+    "SPAN_PX",
+    "PointVerifier",
+    "crop_point_patches",
+    "refined",
+]

@@ -23,6 +23,7 @@ from semslam.perception.point_verifier import (
     SPAN_PX,
     PointVerifier,
     crop_point_patches,
+    refined,
 )
 from semslam.simulation.topview_samples import sample_topviews
 
@@ -69,12 +70,47 @@ def test_shipped_model_contract(verifier):
     assert model_path(DEFAULT_MODEL).stat().st_size < 10e6
     rng = np.random.default_rng(3)
     patches = rng.integers(0, 256, (7, PATCH_PX, PATCH_PX, 3), dtype=np.uint8)
-    p = verifier.probabilities(patches)
-    assert p.shape == (7,) and np.all((p >= 0) & (p <= 1))
-    assert np.array_equal(p, verifier.probabilities(patches))  # deterministic
-    one_by_one = np.concatenate([verifier.probabilities(patches[k : k + 1]) for k in range(7)])
-    np.testing.assert_allclose(p, one_by_one, atol=1e-6)  # the halves are the whole
-    assert verifier.probabilities(np.zeros((0, PATCH_PX, PATCH_PX, 3), np.uint8)).shape == (0,)
+    v = verifier.verdicts(patches)
+    assert v.shape == (7, 5) and np.all((v[:, 0] >= 0) & (v[:, 0] <= 1))
+    np.testing.assert_allclose(np.hypot(v[:, 3], v[:, 4]), 1.0, atol=1e-5)  # a turn
+    assert np.array_equal(v, verifier.verdicts(patches))  # deterministic
+    one_by_one = np.concatenate([verifier.verdicts(patches[k : k + 1]) for k in range(7)])
+    np.testing.assert_allclose(v, one_by_one, atol=1e-5)  # the halves are the whole
+    assert verifier.verdicts(np.zeros((0, PATCH_PX, PATCH_PX, 3), np.uint8)).shape == (0, 5)
+
+
+def test_refined_moves_along_the_patch_axes_and_turns():
+    uv = np.array([[100.0, 200.0], [100.0, 200.0]])
+    d = np.array([0.0, math.pi / 2])  # pointing right (+u), pointing down (+v)
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    v = np.array([[0.9, 5.0, 3.0, c, s], [0.9, 5.0, 3.0, c, s]])
+    moved, turned = refined(uv, d, v)
+    # up = the direction, right = the direction turned +90 deg in image coordinates
+    np.testing.assert_allclose(moved, [[103.0, 205.0], [95.0, 203.0]], atol=1e-9)
+    np.testing.assert_allclose(turned, [math.radians(30), math.radians(120)], atol=1e-9)
+    assert refined(uv, d, np.array([[0.5, 0, 0, -1.0, 1e-12]] * 2))[1] == pytest.approx(
+        [math.pi, -math.pi / 2])  # wrapped
+
+
+def test_training_targets_are_what_refined_undoes():
+    """The training tool's targets, fed back through :func:`refined`, give the labelled
+    points and directions: the network is trained in the frame the detector reads."""
+    import importlib.util
+    from pathlib import Path
+
+    tool = Path(__file__).resolve().parents[2] / "tools" / "train_point_verifier.py"
+    spec = importlib.util.spec_from_file_location("train_point_verifier", tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rng = np.random.default_rng(5)
+    uv = rng.uniform(0, 600, (20, 2))
+    d = rng.uniform(-math.pi, math.pi, 20)
+    to_uv = uv + rng.normal(0, 8, (20, 2))
+    to_d = d + rng.normal(0, 1.0, 20)
+    t = module.refinement_target(uv, d, to_uv, to_d)
+    moved, turned = refined(uv, d, np.column_stack([np.ones(20), t]))
+    np.testing.assert_allclose(moved, to_uv, atol=1e-3)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (turned - to_d))), 0.0, atol=1e-5)
 
 
 def test_bad_files_and_input(tmp_path, verifier):
@@ -87,13 +123,13 @@ def test_bad_files_and_input(tmp_path, verifier):
     with pytest.raises(PerceptionError, match="expected input"):
         PointVerifier(model_path("marking_points.onnx"))  # another model's input
     with pytest.raises(PerceptionError, match="expected patches"):
-        verifier.probabilities(np.zeros((2, 32, 32, 3), np.uint8))
+        verifier.verdicts(np.zeros((2, 32, 32, 3), np.uint8))
 
 
 @pytest.fixture(scope="module")
 def candidates():
-    """The grid's candidates on held-out views (worlds 0-19), each with whether it is a
-    ps2.0 hit, and the view and verifier they came from."""
+    """The grid's candidates on held-out views (worlds 0-19), each with whether a labelled
+    point lies within 20 px that no stronger candidate took, and the view they came from."""
     grid_only = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD, verify=False)
     out = []
     for s in sample_topviews(range(0, 20), 2, 99):
@@ -104,21 +140,29 @@ def candidates():
         uv = np.array([p.uv for p in pts])
         d = np.array([p.direction for p in pts])
         c = np.array([p.confidence for p in pts])
-        vis = ~a.occluded
-        hit = match_points(uv, d, c, a.points[vis], a.directions[vis]) >= 0
+        labels = a.points[~a.occluded]
+        near = np.zeros(len(uv), bool)
+        free = np.ones(len(labels), bool)
+        for i in np.argsort(-c, kind="stable"):  # greedy, as the training labels are made
+            dist = np.linalg.norm(labels - uv[i], axis=1) if len(labels) else np.zeros(0)
+            j = np.nonzero(free & (dist <= 20.0))[0]
+            if len(j):
+                free[j[np.argmin(dist[j])]] = False
+                near[i] = True
         far = np.ones(len(uv), bool)
         if a.occluded.any():
-            far = np.linalg.norm(uv[:, None] - a.points[a.occluded][None], axis=2).min(1) > 10
-        out.append((s.image, uv[far], d[far], c[far], hit[far]))
+            far = np.linalg.norm(uv[:, None] - a.points[a.occluded][None], axis=2).min(1) > 20
+        out.append((s.image, uv[far], d[far], c[far], near[far], labels,
+                    a.directions[~a.occluded]))
     return out
 
 
 def test_verifier_tells_true_candidates_from_false(verifier, candidates):
-    """On views it never trained on, true candidates score higher than false ones: the
-    verifier ranks them better than the grid's own confidence does."""
+    """On views it never trained on, candidates with a point to move to score higher than
+    those without: the verifier ranks them better than the grid's own confidence does."""
     probs, grid, hits = [], [], []
-    for image, uv, d, c, hit in candidates:
-        probs.append(verifier.verify(image, uv, d))
+    for image, uv, d, c, hit, _, _ in candidates:
+        probs.append(verifier.verify(image, uv, d)[0])
         grid.append(c)
         hits.append(hit)
     p, g, h = np.concatenate(probs), np.concatenate(grid), np.concatenate(hits)
@@ -130,6 +174,17 @@ def test_verifier_tells_true_candidates_from_false(verifier, candidates):
 
     assert auc(p) > 0.9
     assert auc(p) > auc(g)
+
+
+def test_verifier_moves_candidates_onto_their_points(verifier, candidates):
+    """The move and turn bring the candidates that have a point nearer to it: the
+    verifier's places hit (10 px, 30 deg) more labelled points than the grid's."""
+    hits_grid = hits_moved = 0
+    for image, uv, d, c, _, labels, ldir in candidates:
+        _, moved, turned = verifier.verify(image, uv, d)
+        hits_grid += int((match_points(uv, d, c, labels, ldir) >= 0).sum())
+        hits_moved += int((match_points(moved, turned, c, labels, ldir) >= 0).sum())
+    assert hits_moved >= hits_grid
 
 
 def test_detector_with_and_without_the_verifier(candidates):
