@@ -215,27 +215,23 @@ def build_model():
     )
 
 
-class _Exported:
-    """uint8 BGR NHWC patches in; (N, 5) out: probability, move right and up (top-view
-    px), cosine and sine of the turn."""
+def _exported(net):
+    """The trained net in eval mode behind the export's interface: uint8 BGR NHWC patches
+    in; (N, 5) out: probability, move right and up (top-view px), the turn's cosine and
+    sine (unit length)."""
+    import torch
 
-    @staticmethod
-    def make(net):
-        import torch
-        import torch.nn as nn
+    class Verdict(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.net = net
 
-        class Wrapper(nn.Module):
-            def __init__(self, net):
-                super().__init__()
-                self.net = net
+        def forward(self, x):
+            y = self.net(x.permute(0, 3, 1, 2).float() / 127.5 - 1.0)
+            turn = y[:, 3:5] / torch.clamp(y[:, 3:5].norm(dim=1, keepdim=True), min=1e-6)
+            return torch.cat([torch.sigmoid(y[:, 0:1]), y[:, 1:3] * MOVE_SCALE, turn], 1)
 
-            def forward(self, x):
-                x = x.permute(0, 3, 1, 2).float() / 127.5 - 1.0
-                y = self.net(x)
-                turn = y[:, 3:5] / torch.clamp(y[:, 3:5].norm(dim=1, keepdim=True), min=1e-6)
-                return torch.cat([torch.sigmoid(y[:, 0:1]), y[:, 1:3] * MOVE_SCALE, turn], 1)
-
-        return Wrapper(net).eval()
+    return Verdict().eval()
 
 
 def _augment(batch: np.ndarray, target: np.ndarray,
@@ -335,7 +331,7 @@ def export_onnx(net, out: Path) -> None:
 
     from semslam.perception.point_verifier import PATCH_PX
 
-    wrapper = _Exported.make(net)
+    wrapper = _exported(net)
     dummy = torch.zeros(2, PATCH_PX, PATCH_PX, 3, dtype=torch.uint8)
     tmp = out.with_name(out.name + ".tmp")
     torch.onnx.export(wrapper, (dummy,), str(tmp), input_names=["patches"],

@@ -11,6 +11,7 @@ import pytest
 from semslam.errors import PerceptionError
 from semslam.perception.marking_points import DEFAULT_MODELS, MarkingPointDetector, decode_grid
 from semslam.perception.onnx_model import model_path
+from semslam.perception.point_verifier import PointVerifier
 from semslam.simulation.topview_samples import sample_topviews
 from semslam.types import JunctionShape
 
@@ -60,13 +61,15 @@ def test_decode_rejects_bad_grid():
         decode_grid(np.zeros((5, G, G)), 600, 0.5)
 
 
-def test_missing_and_corrupt_model(tmp_path):
+@pytest.mark.parametrize("load", [MarkingPointDetector, PointVerifier])
+def test_missing_and_corrupt_model(tmp_path, load):
+    """The grid model and its verifier alike."""
     with pytest.raises(PerceptionError, match="not found"):
-        MarkingPointDetector(tmp_path / "nope.onnx")
+        load(tmp_path / "nope.onnx")
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"\x00garbage" * 100)
     with pytest.raises(PerceptionError, match="bad.onnx"):
-        MarkingPointDetector(bad)
+        load(bad)
 
 
 @pytest.fixture(scope="module")
