@@ -68,7 +68,8 @@ class MarkingPoint:
         direction: radians in image coordinates, ``atan2(dv, du)``, of the separator line
             from the junction into the slot (DMPR-PS convention).
         shape: T or L junction.
-        confidence: the network's confidence in [0, 1].
+        confidence: in [0, 1]: the geometric mean of the grid's and the verifier's
+            (:func:`verified_confidence`), the grid's alone without the verifier.
     """
 
     uv: FloatArray
