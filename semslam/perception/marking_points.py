@@ -10,7 +10,8 @@ offset inside the cell (0-1) and the cosine and sine of its direction (image coo
 
 By default each candidate the grid offers above :data:`CANDIDATE_THRESHOLD` gets a second
 look from the verifier CNN (:mod:`semslam.perception.point_verifier`), on a sharper patch
-turned to the point's direction; a point's confidence is then the geometric mean of the
+turned to the point's direction: it moves the candidate onto its point, turns it to the
+point's direction and rescores it. A point's confidence is then the geometric mean of the
 grid's and the verifier's, kept at :data:`DEFAULT_THRESHOLD` (``verify=False``: the grid
 alone at :data:`GRID_THRESHOLD`).
 
@@ -261,8 +262,7 @@ class MarkingPointDetector:
             topview_bgr, np.array([p.uv for p in out]), np.array([p.direction for p in out])
         )
         conf = verified_confidence([p.confidence for p in out], prob)
-        inside = (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5) & (uv[:, 1] >= -0.5) & (
-            uv[:, 1] <= h - 0.5)
+        inside = np.all((uv >= -0.5) & (uv <= np.array([w, h]) - 0.5), axis=1)
         keep = np.nonzero((conf >= self.threshold) & inside)[0]
         # two candidates the verifier moved onto the same point: the stronger stays
         kept = keep[suppress_close(uv[keep], conf[keep], NMS_RADIUS_PX * side / 600.0)]

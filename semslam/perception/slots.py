@@ -302,6 +302,8 @@ class SlotDetector:
 
     The slots' pixel geometry assumes the top view's scale ``spec.metres_per_px``
     (ps2.0: 1/60 m per px); non-square images are handled by the point detector.
+    ``model_path``, ``threshold`` and ``verify`` go to :class:`MarkingPointDetector`
+    (``verify=False``: the grid's points without the verifier's second look).
     """
 
     def __init__(
