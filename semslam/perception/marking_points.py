@@ -42,10 +42,13 @@ GRID_THRESHOLD = 0.7
 best F1 on simulated validation worlds 100-149 (neither trained on nor the benchmark's
 0-99; see ``models/marking_points.md``)."""
 
-CANDIDATE_THRESHOLD = 0.2
-"""Grid confidence above which a cell is a candidate for the verifier: 98.8 % of the
-labelled points of the benchmark's held-out views have a candidate that hits them
-(``tools/train_point_verifier.py``; 96.7 % at :data:`GRID_THRESHOLD`)."""
+CANDIDATE_THRESHOLD = 0.3
+"""Grid confidence above which a cell is a candidate for the verifier. Below it no candidate
+could be kept: the geometric mean reaches :data:`DEFAULT_THRESHOLD` only from a grid
+confidence of ``DEFAULT_THRESHOLD ** 2`` (0.3025). 98.6 % of the labelled points of the
+benchmark's held-out views have a candidate that hits them (96.7 % at
+:data:`GRID_THRESHOLD`); the verifier was trained on candidates from 0.2
+(``tools/train_point_verifier.py``)."""
 
 DEFAULT_THRESHOLD = 0.55
 """Verified confidence (:func:`verified_confidence`) above which a candidate is a marking

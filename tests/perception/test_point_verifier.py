@@ -13,8 +13,10 @@ from semslam.errors import PerceptionError
 from semslam.evaluation.detection_metrics import match_points
 from semslam.perception.marking_points import (
     CANDIDATE_THRESHOLD,
+    DEFAULT_THRESHOLD,
     GRID_THRESHOLD,
     MarkingPointDetector,
+    verified_confidence,
 )
 from semslam.perception.onnx_model import model_path
 from semslam.perception.point_verifier import (
@@ -180,6 +182,13 @@ def test_verifier_moves_candidates_onto_their_points(verifier, candidates):
         hits_grid += int((match_points(uv, d, c, labels, ldir) >= 0).sum())
         hits_moved += int((match_points(moved, turned, c, labels, ldir) >= 0).sum())
     assert hits_moved >= hits_grid
+
+
+def test_no_candidate_left_out_could_be_kept():
+    """A cell under the candidate threshold could not reach the kept confidence even with
+    the verifier's full vote, so the threshold only saves work."""
+    assert CANDIDATE_THRESHOLD <= DEFAULT_THRESHOLD**2
+    assert verified_confidence(CANDIDATE_THRESHOLD - 1e-9, 1.0) < DEFAULT_THRESHOLD
 
 
 def test_detector_with_and_without_the_verifier(candidates):
