@@ -3,26 +3,31 @@
 Stages, each re-runnable:
 
 1. mine: simulated top views of worlds the marking-point CNN never trained on; the
-   shipped pair (``MarkingPointDetector``) at the low candidate threshold; each candidate
-   labelled by the ps2.0 hit rule (within 10 px and 30 deg of a labelled point, greedy by
-   confidence, one detection per label), candidates within 10 px of a covered label left
-   out; the turned patches of :func:`semslam.perception.point_verifier.crop_point_patches`
-   cached as ``.npz`` shards in ``--cache`` (training sets: a second patch per candidate,
-   the point moved by up to 3 px and turned by up to 8 deg, as the grid errs);
-2. train: a small CNN, binary cross-entropy, on ``--threads`` CPU threads for at most
-   ``--minutes``; photometric augmentation and left-right mirrors (a mirrored T or L
-   junction is one); fixed seeds;
-3. export: ONNX (opset 17, input ``(N, 64, 64, 3)`` uint8 BGR, output ``(N,)`` float32
-   probabilities), written atomically, checked against torch;
+   shipped pair (``MarkingPointDetector(verify=False)``) at ``CANDIDATE_THRESHOLD``; each
+   candidate is positive when a visible labelled point lies within ``REFINE_PX`` of it
+   that no stronger candidate took (:func:`assign_nearby`), with the move and turn onto
+   that point as targets (:func:`refinement_target`); candidates near a covered label and
+   with none to take are left out; also the ps2.0 hit label (10 px, 30 deg) as found, for
+   the evaluation; the turned patches of
+   :func:`semslam.perception.point_verifier.crop_point_patches` cached as ``.npz`` shards
+   in ``--cache`` (training sets: a second patch per candidate, the point moved by up to
+   3 px and turned by up to 8 deg, as the grid errs);
+2. train: a small CNN on ``--threads`` CPU threads for at most ``--minutes``: binary
+   cross-entropy, plus on the positives the move and the turn (:func:`_loss`);
+   photometric augmentation and left-right mirrors (a mirrored T or L junction is one);
+   fixed seeds;
+3. export: ONNX (opset 17, input ``(N, 64, 64, 3)`` uint8 BGR, output ``(N, 5)`` float32:
+   probability, move right and up, the turn's cosine and sine), written atomically,
+   checked against torch;
 4. evaluate: on held-out worlds, the ps2.0 point precision and recall of the pair alone
-   (at its threshold) and of the candidates rescored by the verifier, for the ways of
-   combining the two scores and thresholds given; the choice is made on the validation
-   worlds (100-149) and reported on the test worlds (0-99).
+   (at its threshold) and of the candidates rescored by the verifier, each way of
+   combining the two scores, with and without the move and turn; each way's threshold is
+   chosen on the validation worlds (100-149) and reported on the test worlds (0-99).
 
 Example (the shipped file; ``models/point_verifier.md``)::
 
     PYTHONPATH=. python tools/train_point_verifier.py --stage mine
-    PYTHONPATH=. python tools/train_point_verifier.py --stage train --minutes 40 \
+    PYTHONPATH=. python tools/train_point_verifier.py --stage train --minutes 45 \
         --out semslam/models/point_verifier.onnx
     PYTHONPATH=. python tools/train_point_verifier.py --stage evaluate \
         --out semslam/models/point_verifier.onnx

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from semslam.errors import PerceptionError
+from semslam.geometry import wrap_angle
 from semslam.perception import onnx_model
 from semslam.perception.beside import run_beside
 
@@ -100,7 +101,7 @@ def refined(uv: np.ndarray, directions: np.ndarray, verdicts: np.ndarray
     v = np.asarray(verdicts, float).reshape(-1, 5)
     dx, dy = np.cos(a), np.sin(a)
     moved = uv + v[:, 1:2] * np.stack([-dy, dx], 1) + v[:, 2:3] * np.stack([dx, dy], 1)
-    turned = np.angle(np.exp(1j * (a + np.arctan2(v[:, 4], v[:, 3]))))
+    turned = wrap_angle(a + np.arctan2(v[:, 4], v[:, 3]))
     return moved, turned
 
 
