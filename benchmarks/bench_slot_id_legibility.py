@@ -7,7 +7,9 @@ blind to the truth and to the reader, into ``benchmarks/annotations/slot_id_legi
 (empty reading: could not read it). This script regenerates the crops (cached), checks that
 each annotated crop is the same one (world, render seed, slot), and scores the reader
 against the eye: how often each is right, and the reader's accuracy on the IDs the eye
-read right (the "readable" a person means).
+read right (the "readable" a person means). A second table splits both by how sharp the
+simulated camera is where the ID is painted: camera samples across the text's height
+(``meta`` column 6 of the crops).
 
     PYTHONPATH=. python benchmarks/bench_slot_id_legibility.py [--json out.json]
     PYTHONPATH=. python benchmarks/bench_slot_id_legibility.py --montage DIR  # pictures to annotate
@@ -106,6 +108,41 @@ def score(data: dict, annotations: list[tuple[int, str | None]], model: Path | N
     }
 
 
+SAMPLE_BINS = (0.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, np.inf)
+
+
+def by_resolution(data: dict, annotations: list[tuple[int, str | None]],
+                  model: Path | None) -> list[dict]:
+    """The eye (on its sample) and the reader (on every readable test crop) by how many
+    camera samples span the text's height where it is painted (the simulator's fisheye
+    resolution there: ``TopviewRenderer.source_spacing_m``), one row per bin."""
+    samples = data["meta"][:, 6]
+    readable = np.nonzero(data["status"] == READABLE)[0]
+    reads = SlotIdReader(model, min_confidence=0.0).read_patches(list(data["patches"][readable]))
+    reader_right = np.array([r.label for r in reads], dtype=object) == data["labels"][readable]
+    crops = np.array([c for c, _ in annotations])
+    eye_right = np.array([r for _, r in annotations], dtype=object) == data["labels"][crops]
+    rows = []
+    for lo, hi in zip(SAMPLE_BINS[:-1], SAMPLE_BINS[1:], strict=True):
+        e = (samples[crops] >= lo) & (samples[crops] < hi)
+        r = (samples[readable] >= lo) & (samples[readable] < hi)
+        rows.append({"samples": [lo, hi if np.isfinite(hi) else None],
+                     "eye": [int(eye_right[e].sum()), int(e.sum())],
+                     "reader": [int(reader_right[r].sum()), int(r.sum())]})
+    return rows
+
+
+def markdown_by_resolution(rows: list[dict]) -> str:
+    out = ["| camera samples across the text height | the eye: right / of | the reader: "
+           "right / of | share |", "| --- | --- | --- | --- |"]
+    for row in rows:
+        lo, hi = row["samples"]
+        (er, en), (rr, rn) = row["eye"], row["reader"]
+        span = f"{lo:g}-{hi:g}" if hi is not None else f">= {lo:g}"
+        out.append(f"| {span} | {er} / {en} | {rr} / {rn} | {rr / max(rn, 1):.3f} |")
+    return "\n".join(out)
+
+
 def markdown(s: dict) -> str:
     rows = [("the eye, all readable crops", s["eye_right"]),
             ("the eye, crops it read", s["eye_right_when_it_read"]),
@@ -131,8 +168,11 @@ def main() -> None:
     if args.montage is not None:
         write_montages(data, args.montage)
         return
-    result = score(data, read_annotations(data), args.model)
-    report(markdown(result), result, args.json)
+    annotations = read_annotations(data)
+    result = score(data, annotations, args.model)
+    result["by_resolution"] = by_resolution(data, annotations, args.model)
+    report(markdown(result) + "\n\n" + markdown_by_resolution(result["by_resolution"]),
+           result, args.json)
 
 
 if __name__ == "__main__":

@@ -52,6 +52,8 @@ SETS = {
     "train": (range(1000, 1400), 8, 11, 2),  # world seeds, views per world, seed, crops/label
     "train2": (range(1400, 1600), 8, 44, 2),  # more training worlds (continuation)
     "train3": (range(1600, 2000), 8, 55, 2),
+    # worlds whose slots carry a random letter each (see relabelled_world)
+    "letters": (range(2000, 2400), 8, 66, 2),
     "calib": (range(100, 200), 8, 22, 1),
     "test": (range(0, 100), 8, 33, 1),
 }
@@ -99,6 +101,22 @@ def _jittered(rng, e, d, strong=1.0):
     return e, np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
 
 
+def relabelled_world(world, rng: np.random.Generator):
+    """``world`` with every slot's ID drawn afresh: a letter (uniform over the simulator's
+    ``LABEL_CHARS``) and a number 1-99. The simulator gives one letter to a whole row and
+    numbers the row from 1, so a letter is about a tenth as common in its IDs as a digit
+    is; in these worlds every letter is as common as a digit."""
+    import dataclasses
+
+    from semslam.simulation.world import LABEL_CHARS
+
+    def label() -> str:
+        return f"{LABEL_CHARS[int(rng.integers(len(LABEL_CHARS)))]}{int(rng.integers(1, 100))}"
+
+    slots = tuple(dataclasses.replace(s, label=label()) for s in world.slots)
+    return dataclasses.replace(world, slots=slots)
+
+
 def generate(name: str, cache: Path) -> dict:
     path = cache / f"slot_ids_{name}.npz"
     if path.exists():
@@ -113,6 +131,8 @@ def generate(name: str, cache: Path) -> dict:
     for ws in seeds:
         preset = presets[int(rng.integers(len(presets)))]
         world = make_world(preset, int(ws))
+        if name == "letters":
+            world = relabelled_world(world, rng)
         renderer = TopviewRenderer(world)
         captured = {}
         draw = renderer._draw_solids
@@ -149,6 +169,9 @@ def generate(name: str, cache: Path) -> dict:
                     continue  # the crop would be entirely off the image
                 paint = world.slot_paint[slot_id]
                 bottom, top = 0.35 + paint.text_height / 2, 0.35 + 1.5 * paint.text_height
+                # camera samples across the text's height (the fisheye's resolution there)
+                samples = paint.text_height / float(
+                    renderer.source_spacing_m(box.mean(axis=0)[None])[0])
                 for _c in range(crops):
                     ej, dj = _jittered(jrng, e, d)
                     ppm, rng_d = PX_PER_M, DEPTH_RANGE_M
@@ -162,13 +185,13 @@ def generate(name: str, cache: Path) -> dict:
                     patches.append(crop_id_patch(image, ej, dj, px_per_m=ppm, depth_range_m=rng_d))
                     labels.append(label if st == READABLE else "")
                     status.append(st)
-                    meta.append((ws, rseed, slot_id, inside, visible, occluded))
+                    meta.append((ws, rseed, slot_id, inside, visible, occluded, samples))
                 if jrng.random() < (0.2 if name.startswith("train") else 0.1):  # the wrong way
                     ej, dj = _jittered(jrng, e, -d)
                     patches.append(crop_id_patch(image, ej, dj))
                     labels.append("")
                     status.append(BLANK)
-                    meta.append((ws, rseed, slot_id, -1.0, 0.0, 0.0))
+                    meta.append((ws, rseed, slot_id, -1.0, 0.0, 0.0, samples))
         if ws % 50 == 0:
             print(
                 f"[data {name}] world {ws}: {len(patches)} crops, {time.time() - t0:.0f} s",

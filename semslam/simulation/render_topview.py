@@ -237,6 +237,7 @@ class TopviewRenderer:
         row0 = 0
         back_x = np.full((n, n), -10.0, np.float32)
         back_y = np.full((n, n), -10.0, np.float32)
+        self._source_spacing = np.full((n, n), np.nan, np.float32)
         fwd: list[tuple[np.ndarray, np.ndarray]] = []
         for ci, name in enumerate(_CAMS):
             cp, H, yaw = np.array(pos[name]), float(heights[name]), yaws[name]
@@ -254,6 +255,9 @@ class TopviewRenderer:
             nrows = int(math.ceil(w[-1])) + 1
             rho_rows = np.interp(np.arange(nrows), w, grid)
             self._cams[name] = _Camera(cp, H, phi0 + yaw, rho_rows, row0)
+            self._source_spacing[m] = np.maximum(
+                np.maximum(_DRHO0, dtheta * (H * H + dist**2) / H), dist * _DPHI
+            )
             back_x[m] = (phi - phi0) / _DPHI
             back_y[m] = np.interp(dist, grid, w) + row0
             rho = rho_rows[:, None]
@@ -526,6 +530,25 @@ class TopviewRenderer:
         polys = self._draw_solids(S, P, mTv)
         img = self._camera_pipeline(S, mTv, rng)
         return img, self._annotate(P, mTv, polys)
+
+    def source_spacing_m(self, uv: np.ndarray) -> np.ndarray:
+        """Ground metres per sample of the camera image each top-view pixel is resampled
+        from: the coarser of its radial and tangential spacing (radial: the fisheye's
+        (H^2 + r^2) / H growth at distance r from the camera, tangential: r times the
+        azimuth step). How sharp the floor can be there, before any blur.
+
+        Args:
+            uv: (N, 2) top-view pixels (u right, v down), rounded to the nearest.
+
+        Returns:
+            (N,) metres; NaN in the ego box and outside the image.
+        """
+        n = self.spec.size_px
+        px = np.rint(np.asarray(uv, float).reshape(-1, 2)).astype(int)
+        inside = ((px >= 0) & (px < n)).all(axis=1)
+        out = np.full(len(px), np.nan)
+        out[inside] = self._source_spacing[px[inside, 1], px[inside, 0]]
+        return out
 
     def _world_to_pixel(self, mTv: np.ndarray) -> np.ndarray:
         """(3, 3) homogeneous map-frame metres -> top-view pixels."""

@@ -139,3 +139,19 @@ def test_slot_pairs_and_types_in_garage():
                 assert angle in (45, 60)
             else:
                 assert angle == 90
+
+
+def test_source_spacing_grows_away_from_the_cameras(renderer):
+    """The camera's ground spacing behind each top-view pixel: finest beside the car,
+    coarser (fisheye) farther out along every side, unknown in the ego box and outside."""
+    c = SPEC.centre_px
+    side = SPEC.ego_width_m / 2 / SPEC.metres_per_px  # half the ego box's width, px
+    near_far = np.array([[c + side + 20, c], [c + side + 230, c],  # right of the car
+                         [c - side - 20, c], [c - side - 230, c],  # left
+                         [c, 20], [c, 170],  # ahead: far, then nearer
+                         [c, c], [-5, c]])  # ego box, outside the image
+    g = renderer.source_spacing_m(near_far)
+    assert np.all(np.isfinite(g[:6])) and np.all(g[:6] > 0)
+    assert g[1] > 2 * g[0] and g[3] > 2 * g[2] and g[4] > g[5]
+    assert np.isnan(g[6]) and np.isnan(g[7])
+    assert g[0] < 0.05  # a few centimetres beside the car, the paint is sharp
