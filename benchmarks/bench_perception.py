@@ -202,10 +202,12 @@ def main() -> None:
                         help="another marking-point ONNX file (default: the shipped one)")
     parser.add_argument("--no-verify", action="store_true",
                         help="the marking-point grid alone, without the verifier's second look")
+    parser.add_argument("--verifier", type=Path, default=None,
+                        help="another verifier ONNX file (default: the shipped one)")
     args = parser.parse_args()
-    perception = TopviewPerception(
-        lines=False, slot_detector=SlotDetector(args.points_model, verify=not args.no_verify)
-    )
+    slots = SlotDetector(args.points_model, verify=not args.no_verify,
+                         verifier_path=args.verifier)
+    perception = TopviewPerception(lines=False, slot_detector=slots)
     sim = simulated(perception, args.worlds, args.per_world)
     dm = sim["dmpr_protocol"]
     real_dm = real_dmpr_protocol(perception)

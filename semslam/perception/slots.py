@@ -302,8 +302,9 @@ class SlotDetector:
 
     The slots' pixel geometry assumes the top view's scale ``spec.metres_per_px``
     (ps2.0: 1/60 m per px); non-square images are handled by the point detector.
-    ``model_path``, ``threshold`` and ``verify`` go to :class:`MarkingPointDetector`
-    (``verify=False``: the grid's points without the verifier's second look).
+    ``model_path``, ``threshold``, ``verify`` and ``verifier_path`` go to
+    :class:`MarkingPointDetector` (``verify=False``: the grid's points without the
+    verifier's second look).
     """
 
     def __init__(
@@ -313,8 +314,9 @@ class SlotDetector:
         spec: TopviewSpec | None = None,
         rules: SlotRules | None = None,
         verify: bool = True,
+        verifier_path: str | os.PathLike[str] | None = None,
     ) -> None:
-        self.points = MarkingPointDetector(model_path, threshold, verify)
+        self.points = MarkingPointDetector(model_path, threshold, verify, verifier_path)
         self.spec = spec or TopviewSpec()
         self.rules = rules or SlotRules()
 
