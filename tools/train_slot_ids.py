@@ -599,7 +599,7 @@ def main() -> None:
     # the exported graph must agree with torch
     from semslam.perception.slot_ids import SlotIdReader
 
-    reader = SlotIdReader(args.out)
+    reader = SlotIdReader(args.out, min_confidence=0.0)  # every label, as torch's readings
     onnx_reads = reader.read_patches(list(data["test"]["patches"][:200]))
     torch_reads = readings(test_logits[:200], T)
     report["onnx_torch_label_agreement"] = float(
