@@ -20,6 +20,8 @@ from semslam.perception.slot_ids import (
     ctc_greedy,
     ctc_label_probability,
     reading_from_probs,
+    reading_from_shifted_probs,
+    shift_columns,
 )
 
 MODEL = model_path("slot_ids.onnx")
@@ -121,6 +123,8 @@ def test_missing_or_corrupt_model(tmp_path):
         SlotIdReader(bad)
     with pytest.raises(PerceptionError):
         SlotIdReader(bad, min_confidence=2.0)
+    with pytest.raises(PerceptionError, match="shifts"):
+        SlotIdReader(MODEL, shifts=())
 
 
 @pytest.fixture(scope="module")
@@ -217,3 +221,37 @@ def test_confidence_counts_a_letter_the_greedy_path_dropped():
     assert r.label == "21" and min(r.char_confidences) > 0.99
     assert 0.5 < r.confidence < 0.56
     assert ctc_label_probability(p, "T21") == pytest.approx(0.45, abs=0.01)
+
+
+def test_shift_columns_moves_the_patch_and_blackens_what_it_uncovers():
+    p = np.arange(1, 13, dtype=np.uint8).reshape(2, 6)
+    right, left = shift_columns(p, 2), shift_columns(p, -2)
+    assert right[:, :2].max() == 0 and np.array_equal(right[:, 2:], p[:, :4])
+    assert left[:, 4:].max() == 0 and np.array_equal(left[:, :4], p[:, 2:])
+    assert np.array_equal(shift_columns(p, 0), p)
+
+
+def _frames(path: str, alphabet: str = "AB", sure: float = 0.9) -> np.ndarray:
+    """(T, C) probabilities whose best class per frame spells ``path`` ("-" = blank)."""
+    p = np.full((len(path), len(alphabet) + 1), (1.0 - sure) / len(alphabet))
+    for t, ch in enumerate(path):
+        p[t, 0 if ch == "-" else alphabet.index(ch) + 1] = sure
+    return p
+
+
+def test_shifted_reading_takes_the_label_most_probable_over_the_shifts():
+    # two shifts read "AB" firmly, one reads "A" with a dropped B: "AB" wins, and its
+    # confidence is its CTC probability averaged over all three shifts
+    probs = np.stack([_frames("A-B-"), _frames("A---", sure=0.6), _frames("-A-B")])
+    r = reading_from_shifted_probs(probs, "AB")
+    assert r.label == "AB"
+    expected = np.mean([ctc_label_probability(q, "AB", "AB") for q in probs])
+    assert abs(r.confidence - expected) < 1e-12 and len(r.char_confidences) == 2
+    # one shift is the single reading
+    single = reading_from_shifted_probs(probs[:1], "AB")
+    assert single == reading_from_probs(probs[0], "AB")
+    # blank everywhere: nothing, with the all-blank probability
+    none = reading_from_shifted_probs(np.stack([_frames("----")] * 3), "AB")
+    assert none.label is None and none.confidence > 0.5
+    with pytest.raises(PerceptionError):
+        reading_from_shifted_probs(np.zeros((4, 3)), "AB")
