@@ -14,6 +14,7 @@ from semslam.perception.slot_ids import (
     ALPHABET,
     PATCH_HEIGHT,
     PATCH_WIDTH,
+    SHIFTED_READS_PX,
     SlotIdReader,
     SlotIdReading,
     crop_id_patch,
@@ -174,6 +175,12 @@ def test_shipped_model_reads_held_out_views(held_out):
     # a batch (run in two halves at once) reads each patch as it reads alone
     alone = np.concatenate([reader.probabilities([p]) for p in patches[:5]])
     np.testing.assert_allclose(reader.probabilities(patches[:5]), alone, atol=1e-6)
+    # read at three shifts: the shifted copies' probabilities, combined
+    three = SlotIdReader(min_confidence=0.0, shifts=SHIFTED_READS_PX)
+    for p, r in zip(patches[:3], three.read_patches(patches[:3]), strict=True):
+        probs = reader.probabilities([shift_columns(p, dx) for dx in SHIFTED_READS_PX])
+        expected = reading_from_shifted_probs(probs)
+        assert r.label == expected.label and abs(r.confidence - expected.confidence) < 1e-5
     img, e, d, _ = held_out[0]
     one = reader.read(img, e, d)
     assert one.label == reads[0].label and abs(one.confidence - reads[0].confidence) < 1e-6
