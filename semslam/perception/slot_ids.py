@@ -215,14 +215,14 @@ def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdRea
 
 def shift_columns(patch: np.ndarray, dx: int) -> np.ndarray:
     """``patch`` moved ``dx`` columns to the right (left when negative); the columns it
-    uncovers are black, as outside the top view."""
+    uncovers are black, as outside the top view. ``dx == 0`` returns ``patch`` itself."""
+    if dx == 0:
+        return patch
     out = np.zeros_like(patch)
     if dx > 0:
         out[:, dx:] = patch[:, :-dx]
-    elif dx < 0:
-        out[:, :dx] = patch[:, -dx:]
     else:
-        out[:] = patch
+        out[:, :dx] = patch[:, -dx:]
     return out
 
 

@@ -94,9 +94,8 @@ def test_refined_moves_along_the_patch_axes_and_turns():
         [math.pi, -math.pi / 2])  # wrapped
 
 
-def test_training_targets_are_what_refined_undoes():
-    """The training tool's targets, fed back through :func:`refined`, give the labelled
-    points and directions: the network is trained in the frame the detector reads."""
+def _training_tool():
+    """``tools/train_point_verifier.py`` as a module (tools/ is not a package)."""
     import importlib.util
     from pathlib import Path
 
@@ -104,6 +103,13 @@ def test_training_targets_are_what_refined_undoes():
     spec = importlib.util.spec_from_file_location("train_point_verifier", tool)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    return module
+
+
+def test_training_targets_are_what_refined_undoes():
+    """The training tool's targets, fed back through :func:`refined`, give the labelled
+    points and directions: the network is trained in the frame the detector reads."""
+    module = _training_tool()
     rng = np.random.default_rng(5)
     uv = rng.uniform(0, 600, (20, 2))
     d = rng.uniform(-math.pi, math.pi, 20)
@@ -128,6 +134,7 @@ def candidates():
     """The grid's candidates on held-out views (worlds 0-19), each with whether a labelled
     point lies within 20 px that no stronger candidate took, and the view they came from."""
     grid_only = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD, verify=False)
+    assign_nearby = _training_tool().assign_nearby
     out = []
     for s in sample_topviews(range(0, 20), 2, 99):
         a = s.annotation
@@ -138,14 +145,7 @@ def candidates():
         d = np.array([p.direction for p in pts])
         c = np.array([p.confidence for p in pts])
         labels = a.points[~a.occluded]
-        near = np.zeros(len(uv), bool)
-        free = np.ones(len(labels), bool)
-        for i in np.argsort(-c, kind="stable"):  # greedy, as the training labels are made
-            dist = np.linalg.norm(labels - uv[i], axis=1) if len(labels) else np.zeros(0)
-            j = np.nonzero(free & (dist <= 20.0))[0]
-            if len(j):
-                free[j[np.argmin(dist[j])]] = False
-                near[i] = True
+        near = assign_nearby(uv, c, labels) >= 0  # as the training labels are made
         far = np.ones(len(uv), bool)
         if a.occluded.any():
             far = np.linalg.norm(uv[:, None] - a.points[a.occluded][None], axis=2).min(1) > 20
