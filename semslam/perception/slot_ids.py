@@ -43,15 +43,18 @@ PATCH_WIDTH = 128
 PX_PER_M = 40.0  # patch resolution
 DEPTH_RANGE_M = (-0.1, 1.5)  # along the slot, from the entrance line
 TOPVIEW_M_PER_PX = 1.0 / 60.0  # ps2.0
-READ_SHIFTS_PX = (0,)
-"""Shifts across the patch (patch px) at which :class:`SlotIdReader` reads each patch by
-default: once, as cropped. ``shifts=SHIFTED_READS_PX`` reads it three times and keeps the
-label most probable on average (:func:`reading_from_shifted_probs`)."""
 SHIFTED_READS_PX = (0, -2, 2)
-"""The CTC frames are 4 px wide, so text between two frames reads better from a shifted
-copy: on the held-out crops 0.821 -> 0.826 of readable IDs and 104 -> 107 of the 108 a
-person reads (``models/slot_ids.md``). Not the default: it triples the reader's work, and
-points + slots + IDs then took 20.1 ms in ``semslam bench`` against the 20 ms target."""
+"""Shifts across the patch (patch px) at which :class:`SlotIdReader` reads a patch: as
+cropped first, then moved 2 columns left and right when the first reading is unsure
+(:data:`REREAD_BELOW`). The CTC frames are 4 px wide, so text between two frames reads
+better from a shifted copy; the label most probable on average over the reads wins
+(:func:`reading_from_shifted_probs`)."""
+REREAD_BELOW = 0.7
+"""Confidence under which the first reading is read again at the other shifts. Picked on
+the calibration worlds, the lowest at which re-reading gains all that reading every crop
+three times gains (0.865 -> 0.881 of readable IDs) while the labels given >= 0.9 stay the
+same; on the held-out crops 0.821 -> 0.827 of readable IDs and 104 -> 107 of the 108 a
+person reads, re-reading 29 % of the crops (``models/slot_ids.md``)."""
 
 
 @dataclass(frozen=True)
@@ -254,21 +257,27 @@ class SlotIdReader:
     confidence and characters), so callers only see labels more likely right than wrong
     (default 0.5); 0 keeps every decoded label. Mapping should vote with labels of
     confidence >= 0.9 (>= 99 % right on held-out simulated views, see the model card).
-    ``shifts``: the patch columns each patch is read at (default :data:`READ_SHIFTS_PX`,
-    once; :data:`SHIFTED_READS_PX` three times).
+    ``shifts``: the patch columns each patch is read at, the first for every patch, the
+    others only for readings whose confidence is below ``reread_below`` (defaults
+    :data:`SHIFTED_READS_PX`, :data:`REREAD_BELOW`; ``shifts=(0,)`` or ``reread_below=0``
+    reads once, ``reread_below=math.inf`` reads every patch at every shift).
     """
 
     def __init__(
         self,
         model_path: str | Path | None = None,
         min_confidence: float = 0.5,
-        shifts: tuple[int, ...] = READ_SHIFTS_PX,
+        shifts: tuple[int, ...] = SHIFTED_READS_PX,
+        reread_below: float = REREAD_BELOW,
     ):
         if not 0.0 <= float(min_confidence) <= 1.0:
             raise PerceptionError(f"min_confidence: expected 0..1, got {min_confidence}")
         if not shifts or any(abs(int(d)) >= PATCH_WIDTH for d in shifts):
             raise PerceptionError(f"shifts: expected patch columns, got {shifts!r}")
         self.shifts = tuple(int(d) for d in shifts)
+        if not float(reread_below) >= 0.0:
+            raise PerceptionError(f"reread_below: expected >= 0, got {reread_below}")
+        self.reread_below = float(reread_below)
         if model_path is None:
             model_path = onnx_model.model_path("slot_ids.onnx")
         path = Path(model_path)
@@ -322,28 +331,31 @@ class SlotIdReader:
         return np.concatenate([first, second.result()[0]])
 
     def read_patches(self, patches) -> list[SlotIdReading]:
-        """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`, each read at
-        every one of ``shifts`` (:func:`reading_from_shifted_probs`), one batch."""
+        """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`: each read at
+        the first of ``shifts``, those read with confidence below ``reread_below`` again
+        at the others, combined (:func:`reading_from_shifted_probs`); one batch per pass."""
         arr = [np.asarray(p) for p in patches]
         if not arr:
             return []
-        shifted = [shift_columns(p, d) if p.ndim == 2 else p for d in self.shifts for p in arr]
-        probs = self.probabilities(shifted).reshape(len(self.shifts), len(arr), -1,
-                                                    len(ALPHABET) + 1)
-        out = []
-        for k in range(len(arr)):
-            r = reading_from_shifted_probs(probs[:, k])
-            if r.label is not None and r.confidence < self.min_confidence:
-                r = SlotIdReading(None, r.confidence, r.char_confidences)
-            out.append(r)
-        return out
+        first = self.probabilities([shift_columns(p, self.shifts[0]) if p.ndim == 2 else p
+                                    for p in arr])
+        out = [reading_from_probs(q) for q in first]
+        unsure = [k for k, r in enumerate(out) if r.confidence < self.reread_below]
+        others = self.shifts[1:]
+        if unsure and others:
+            again = self.probabilities([shift_columns(arr[k], d) for d in others for k in unsure])
+            again = again.reshape(len(others), len(unsure), *first.shape[1:])
+            for j, k in enumerate(unsure):
+                out[k] = reading_from_shifted_probs(np.concatenate([first[k][None], again[:, j]]))
+        return [SlotIdReading(None, r.confidence, r.char_confidences)
+                if r.label is not None and r.confidence < self.min_confidence else r for r in out]
 
 
 __all__ = [
     "ALPHABET",
     "PATCH_HEIGHT",
     "PATCH_WIDTH",
-    "READ_SHIFTS_PX",
+    "REREAD_BELOW",
     "SHIFTED_READS_PX",
     "SlotIdReader",
     "SlotIdReading",

@@ -14,6 +14,7 @@ from semslam.perception.slot_ids import (
     ALPHABET,
     PATCH_HEIGHT,
     PATCH_WIDTH,
+    REREAD_BELOW,
     SHIFTED_READS_PX,
     SlotIdReader,
     SlotIdReading,
@@ -126,6 +127,8 @@ def test_missing_or_corrupt_model(tmp_path):
         SlotIdReader(bad, min_confidence=2.0)
     with pytest.raises(PerceptionError, match="shifts"):
         SlotIdReader(MODEL, shifts=())
+    with pytest.raises(PerceptionError, match="reread_below"):
+        SlotIdReader(MODEL, reread_below=float("nan"))
 
 
 @pytest.fixture(scope="module")
@@ -175,11 +178,21 @@ def test_shipped_model_reads_held_out_views(held_out):
     # a batch (run in two halves at once) reads each patch as it reads alone
     alone = np.concatenate([reader.probabilities([p]) for p in patches[:5]])
     np.testing.assert_allclose(reader.probabilities(patches[:5]), alone, atol=1e-6)
-    # read at three shifts: the shifted copies' probabilities, combined
-    three = SlotIdReader(min_confidence=0.0, shifts=SHIFTED_READS_PX)
-    for p, r in zip(patches[:3], three.read_patches(patches[:3]), strict=True):
-        probs = reader.probabilities([shift_columns(p, dx) for dx in SHIFTED_READS_PX])
-        expected = reading_from_shifted_probs(probs)
+    # unsure first readings are read again at the other shifts and combined; sure ones
+    # keep their first reading; reread_below=inf reads every patch at every shift
+    once = SlotIdReader(min_confidence=0.0, shifts=(0,))
+    always = SlotIdReader(min_confidence=0.0, reread_below=math.inf)
+    first = once.read_patches(patches)
+    assert [r.label for r in first] == [r.label for r in SlotIdReader(
+        min_confidence=0.0, reread_below=0.0).read_patches(patches)]
+    assert any(r.confidence < REREAD_BELOW for r in first)
+    assert any(r.confidence >= REREAD_BELOW for r in first)
+    triples = [reading_from_shifted_probs(reader.probabilities(
+        [shift_columns(p, dx) for dx in SHIFTED_READS_PX])) for p in patches]
+    for r, one, three, alw in zip(reads, first, triples, always.read_patches(patches),
+                                  strict=True):
+        assert alw.label == three.label and abs(alw.confidence - three.confidence) < 1e-5
+        expected = three if one.confidence < REREAD_BELOW else one
         assert r.label == expected.label and abs(r.confidence - expected.confidence) < 1e-5
     img, e, d, _ = held_out[0]
     one = reader.read(img, e, d)
