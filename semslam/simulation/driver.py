@@ -108,7 +108,7 @@ def drive_path(
     n = (len(t_arr) - 1) // steps_per_frame * steps_per_frame + 1
     t_arr = t_arr[:n]
     speed, yaw_rate = np.array(vs)[:n], np.array(ws)[:n]
-    odo_speed, odo_rate = _odometry(speed, yaw_rate, dt, noise, rng)
+    odo_speed, odo_rate = odometry_with_errors(speed, yaw_rate, dt, noise, rng)
     return DriveRecord(
         t=t_arr,
         poses=np.array(poses)[:n],
@@ -120,13 +120,23 @@ def drive_path(
     )
 
 
-def _odometry(speed, yaw_rate, dt, noise: OdometryNoiseConfig, rng: np.random.Generator):
-    """Wheel speed with a scale error and white noise; yaw rate with bias, bias walk, noise."""
+def odometry_with_errors(
+    speed: FloatArray,
+    yaw_rate: FloatArray,
+    dt: float | FloatArray,
+    noise: OdometryNoiseConfig,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """Wheel speed (m/s) and yaw rate (rad/s) as an automotive odometry reports them: speed
+    times one scale error per drive plus white noise; yaw rate plus a constant bias, its
+    random walk and white noise (``noise``; ``dt``: seconds from each sample to the next,
+    a scalar or one per sample). Used for simulated drives and to add drift to a recorded
+    drive whose odometry is its ground truth."""
     n = len(speed)
     scale = 1.0 + rng.normal(0.0, noise.speed_scale_sigma)
-    odo_speed = speed * scale + rng.normal(0.0, noise.speed_sigma, n)
+    odo_speed = np.asarray(speed) * scale + rng.normal(0.0, noise.speed_sigma, n)
     bias = rng.normal(0.0, noise.gyro_bias_sigma) + np.cumsum(
-        rng.normal(0.0, noise.gyro_bias_walk * math.sqrt(dt), n)
+        rng.normal(0.0, noise.gyro_bias_walk * np.sqrt(dt), n)
     )
-    odo_rate = yaw_rate + bias + rng.normal(0.0, noise.gyro_sigma, n)
+    odo_rate = np.asarray(yaw_rate) + bias + rng.normal(0.0, noise.gyro_sigma, n)
     return odo_speed, odo_rate

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from semslam.config import SimulationConfig
+from semslam.config import OdometryNoiseConfig, SimulationConfig
 from semslam.geometry import inverse_transform_points, transform_points, wrap_angle
 from semslam.motion import integrate_odometry
+from semslam.simulation.driver import odometry_with_errors
 from semslam.simulation.scenario import simulate_drive
 
 
@@ -48,6 +49,27 @@ def test_noisy_odometry_drifts_but_not_wildly(small_drive):
     poses = integrate_odometry(rec.poses[0], rec.t, rec.odo_speed, rec.odo_yaw_rate)
     err = np.linalg.norm(poses[-1, :2] - rec.poses[-1, :2])
     assert 0.01 < err < 0.05 * np.sum(rec.speed) / 50.0
+
+
+def test_odometry_errors_follow_their_model():
+    n, dt = 20_000, 0.1
+    speed, rate = np.full(n, 2.0), np.full(n, 0.05)
+    none = OdometryNoiseConfig(speed_sigma=0, speed_scale_sigma=0, gyro_sigma=0,
+                               gyro_bias_sigma=0, gyro_bias_walk=0)
+    v, w = odometry_with_errors(speed, rate, dt, none, np.random.default_rng(0))
+    assert np.array_equal(v, speed) and np.array_equal(w, rate)
+    # one scale error per drive, one constant bias: the means carry them, white noise the spread
+    only = OdometryNoiseConfig(speed_sigma=0.03, speed_scale_sigma=0.01, gyro_sigma=0.003,
+                               gyro_bias_sigma=1e-3, gyro_bias_walk=0)
+    v, w = odometry_with_errors(speed, rate, dt, only, np.random.default_rng(1))
+    assert abs(np.std(v) - 0.03) < 0.002 and abs(np.std(w) - 0.003) < 0.0002
+    assert 0 < abs(np.mean(v) / 2.0 - 1.0) < 0.05 and 0 < abs(np.mean(w) - 0.05) < 5e-3
+    # the bias walk grows as sqrt(time); per-sample times work as a scalar does
+    walk = OdometryNoiseConfig(speed_sigma=0, speed_scale_sigma=0, gyro_sigma=0,
+                               gyro_bias_sigma=0, gyro_bias_walk=1e-4)
+    ends = [odometry_with_errors(speed, rate, np.full(n, dt), walk,
+                                 np.random.default_rng(k))[1][-1] - 0.05 for k in range(200)]
+    assert np.std(ends) == pytest.approx(1e-4 * math.sqrt(n * dt), rel=0.2)
 
 
 def test_exact_slot_observations_are_the_world_seen_from_the_true_pose(small_drive):
