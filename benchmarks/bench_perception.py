@@ -14,6 +14,13 @@
   the labels' L directions turned to the separator (semslam's convention) and as labelled;
 - speed: median ms per view of marking points + slots, IDs, and both together.
 
+The simulated points are also scored within ps2.0's labelled area: none of the 20,105
+points labelled in ps2.0 (``../shared/realdata/ps2.0-labels``, all 10,134 images) lies
+within 30 px of the image border, so labels and detections within ``PS20_BORDER_PX`` of the
+border are left out: those labels are neither hits nor misses (detections within 10 px of
+them are left out, as for covered labels), and detections in the band that hit no label
+outside it are not false.
+
 The points (simulated and real) are also scored by DMPR-PS's own protocol, which its published 0.99
 comes from (github.com/Teoge/DMPR-PS): its test set keeps only the images whose labelled
 points all lie within 260 px of the centre (``prepare_dataset.boundary_check``), and its
@@ -31,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from _common import report
 
-from semslam.evaluation.detection_metrics import DetectionCounts, score_image
+from semslam.evaluation.detection_metrics import DetectionCounts, match_points, score_image
 from semslam.io.dmpr_labels import read_dmpr_labels
 from semslam.io.images import read_image
 from semslam.perception.slots import SlotDetector
@@ -40,8 +47,10 @@ from semslam.pipeline.detect import evaluate_detection_folder
 from semslam.simulation.topview_samples import sample_topviews
 
 PS20 = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "ps2.0-samples"
+PS20_LABELS_ZIP = PS20.parent / "ps2.0-labels" / "ps_json_label.zip"
 DMPR_LABEL_RADIUS_PX = 260.0  # DMPR-PS boundary_check: labels within this of the centre
 DMPR_BORDER_PX = 30.0  # DMPR-PS BOUNDARY_THRESH 0.05 of 600 px: predictions dropped nearer
+PS20_BORDER_PX = 30.0  # no ps2.0 label lies nearer the border (all 20,105 of them)
 
 
 def dmpr_protocol_keeps(labels: np.ndarray, size: int = 600) -> bool:
@@ -53,6 +62,27 @@ def dmpr_protocol_keeps(labels: np.ndarray, size: int = 600) -> bool:
 def dmpr_protocol_detections(pts: np.ndarray, size: int = 600) -> np.ndarray:
     """Which (N, 2) detections DMPR-PS's decoder would keep (not within 30 px of the border)."""
     return ((pts >= DMPR_BORDER_PX) & (pts <= size - 1 - DMPR_BORDER_PX)).all(axis=1)
+
+
+def in_border_band(pts: np.ndarray, band: float = PS20_BORDER_PX, size: int = 600) -> np.ndarray:
+    """Which (N, 2) points lie within ``band`` px of the border of a ``size`` image."""
+    pts = np.asarray(pts, float).reshape(-1, 2)
+    return np.minimum(pts, size - 1 - pts).min(axis=1) < band
+
+
+def ps20_label_border_distances() -> np.ndarray:
+    """Each ps2.0 labelled point's distance (px) to the nearest image border, over every
+    label file of the ps2.0 label archive (600 x 600 images)."""
+    import json
+    import zipfile
+
+    out = []
+    with zipfile.ZipFile(PS20_LABELS_ZIP) as z:
+        for name in z.namelist():
+            if name.endswith(".json"):
+                marks = np.array(json.loads(z.read(name))["marks"], float).reshape(-1, 5)
+                out.append(np.minimum(marks[:, :2], 599 - marks[:, :2]).min(axis=1))
+    return np.concatenate(out)
 
 
 def real_dmpr_protocol(perception: TopviewPerception) -> dict:
@@ -84,13 +114,14 @@ def _arrays(det):
     return pts, dirs, shapes, conf
 
 
-def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dict:
+def simulated(perception: TopviewPerception, worlds: range, per_world: int) -> dict:
     total = DetectionCounts()
     dmpr = DetectionCounts()  # DMPR-PS's protocol (module docstring)
+    labelled_area = DetectionCounts()  # ps2.0's labelled area (module docstring)
     ids_right = ids_total = ids_read = 0
     confident = confident_right = 0
     t_slots, t_ids, t_both = [], [], []
-    for sample in sample_topviews(range(worlds), per_world, seed=20261122):
+    for sample in sample_topviews(worlds, per_world, seed=20261122):
         a = sample.annotation
         t0 = time.perf_counter()
         det = perception.detect(sample.image)
@@ -135,6 +166,20 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
             a.shapes[visible],
             slots,
         )
+        # ps2.0's labelled area: the border band's labels left out as covered ones are, and
+        # the detections in the band that hit no label outside it
+        band = in_border_band(a.points) & visible
+        inside = visible & ~band
+        k = keep_det.copy()
+        if band.any() and len(pts):
+            k &= np.linalg.norm(pts[:, None] - a.points[band][None], axis=2).min(axis=1) > 10.0
+        hit = np.zeros(len(pts), bool)
+        hit[k] = match_points(pts[k], dirs[k], conf[k], a.points[inside],
+                              a.directions[inside]) >= 0
+        k &= hit | ~in_border_band(pts)
+        none = np.zeros((0, 2), int)
+        labelled_area += score_image(pts[k], dirs[k], shapes[k], conf[k], none, a.points[inside],
+                                     a.directions[inside], a.shapes[inside], none)
         if dmpr_protocol_keeps(a.points):
             k = keep_det & dmpr_protocol_detections(pts)
             none = np.zeros((0, 2), int)
@@ -167,6 +212,7 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
                     confident_right += reading.label == label
     s = total.summary()
     d = dmpr.summary()
+    la = labelled_area.summary()
     return {
         "views": s["images"],
         "point_precision": round(s["point_precision"], 4),
@@ -180,6 +226,12 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
             "point_precision": round(d["point_precision"], 4),
             "point_recall": round(d["point_recall"], 4),
             "points": [d["point_true_positives"], d["point_detections"], d["point_labels"]],
+        },
+        "ps20_labelled_area": {
+            "border_px": PS20_BORDER_PX,
+            "point_precision": round(la["point_precision"], 4),
+            "point_recall": round(la["point_recall"], 4),
+            "points": [la["point_true_positives"], la["point_detections"], la["point_labels"]],
         },
         "ids_visible": ids_total,
         "ids_read": ids_read,
@@ -196,6 +248,9 @@ def simulated(perception: TopviewPerception, worlds: int, per_world: int) -> dic
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--worlds", type=int, default=100)
+    parser.add_argument("--first-world", type=int, default=0,
+                        help="world seeds first-world .. first-world + worlds - 1 (0: the "
+                        "held-out test worlds; 100 the validation worlds thresholds are chosen on)")
     parser.add_argument("--per-world", type=int, default=5)
     parser.add_argument("--json", default=None)
     parser.add_argument("--points-model", type=Path, default=None,
@@ -208,8 +263,13 @@ def main() -> None:
     slots = SlotDetector(args.points_model, verify=not args.no_verify,
                          verifier_path=args.verifier)
     perception = TopviewPerception(lines=False, slot_detector=slots)
-    sim = simulated(perception, args.worlds, args.per_world)
+    sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),
+                    args.per_world)
+    border = ps20_label_border_distances()
+    sim["ps20_labelled_area"]["ps20_labels"] = len(border)
+    sim["ps20_labelled_area"]["ps20_labels_min_border_px"] = round(float(border.min()), 1)
     dm = sim["dmpr_protocol"]
+    la = sim["ps20_labelled_area"]
     real_dm = real_dmpr_protocol(perception)
     keys = ("images", "point_precision", "point_recall", "slot_precision", "slot_recall",
             "shape_accuracy", "labels_redirected")
@@ -226,6 +286,9 @@ def main() -> None:
         f"{sim['id_accuracy_of_read']:.3f} / {sim['id_accuracy_of_visible']:.3f} | "
         f"{sim['id_accuracy_confident']:.3f} ({sim['ids_confident']}) | {sim['slots_ms']:.1f} / "
         f"{sim['ids_ms']:.1f} / {sim['slots_and_ids_ms']:.1f} |",
+        f"| simulated held-out, ps2.0's labelled area (points >= {la['border_px']:g} px from "
+        f"the border) | {sim['views']} | {la['point_precision']:.3f} / "
+        f"{la['point_recall']:.3f} | - | - | - | - |",
         f"| simulated held-out, DMPR-PS's protocol (points) | {dm['views']} | "
         f"{dm['point_precision']:.3f} / {dm['point_recall']:.3f} | - | - | - | - |",
         *(f"| real ps2.0 samples, {name} | {r['images']} | {r['point_precision']:.3f} / "
@@ -236,6 +299,9 @@ def main() -> None:
         f"| real ps2.0 samples, DMPR-PS's protocol (points) | {real_dm['views']} | "
         f"{real_dm['point_precision']:.3f} / {real_dm['point_recall']:.3f} | - | - | - | - |",
     ]
+    md.append("")
+    md.append(f"ps2.0 labels (all {la['ps20_labels']:,}): the nearest lies "
+              f"{la['ps20_labels_min_border_px']:g} px from the image border.")
     report(
         "\n".join(md),
         {"simulated": sim, "ps2.0": real, "ps2.0_label_directions": real_raw,
