@@ -49,29 +49,35 @@ def segments_of(map_path: Path) -> np.ndarray:
     return np.array([[k.a, k.b] for k in m.markings], dtype=float).reshape(-1, 2, 2)
 
 
-def recorded_pose_map(drive: Path, src: Path, config) -> np.ndarray:
-    """The detections placed by the recorded poses (moved to the drive's vehicle frame) and
-    merged as ``--optimizer none`` merges them."""
-    import math
-
-    from semslam.geometry import transform_points
+def recorded_vehicle_poses(drive: Path, src: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Times and poses (N, 3) of the recording, moved to the imported drive's vehicle frame."""
     from semslam.io import Drive
     from semslam.io.garage_bev import open_garage_bev
-    from semslam.mapping.markings import merge_marking_observations
     from semslam.pipeline.import_bev import move_poses, track_odometry
 
-    d = Drive.open(drive)
+    source = Drive.open(drive).info.source
     rec = open_garage_bev(src)
-    source = d.info.source
     poses = move_poses(rec.odometry_poses, source["vehicle_origin_m"],
                        math.radians(source["heading_offset_deg"]))
     # the drive's detections are in the car's axes, which its odometry.csv heads along: the
     # recorded heading turned by heading_offset_deg and the slip angle of track_odometry
     poses[:, 2] = track_odometry(rec.odometry_t, poses)[2]
+    return rec.odometry_t, poses
+
+
+def recorded_pose_map(drive: Path, src: Path, config) -> np.ndarray:
+    """The detections placed by the recorded poses (moved to the drive's vehicle frame) and
+    merged as ``--optimizer none`` merges them."""
+    from semslam.geometry import transform_points
+    from semslam.io import Drive
+    from semslam.mapping.markings import merge_marking_observations
+
+    d = Drive.open(drive)
+    times, poses = recorded_vehicle_poses(drive, src)
     cfg = config.mapping
     segs, widths, conf = [], [], []
     for frame in d.observations("cached"):
-        k = int(np.argmin(np.abs(rec.odometry_t - frame.t)))
+        k = int(np.argmin(np.abs(times - frame.t)))
         for o in frame.markings:
             e = np.array([o.vA, o.vB])
             if o.confidence < cfg.marking_min_confidence or np.linalg.norm(e[1] - e[0]) < (
@@ -130,21 +136,13 @@ def drive_with_odometry_errors(drive: Path, out: Path, scale: float, seed: int) 
 
 
 def trajectory_ate(tum: Path, drive: Path, src: Path) -> dict:
-    """ATE (m) and yaw RMSE (deg) of a keyframe trajectory against the recorded poses,
-    moved to the drive's vehicle frame as :func:`recorded_pose_map` moves them."""
+    """ATE (m) and yaw RMSE (deg) of a keyframe trajectory against the recorded poses in
+    the drive's vehicle frame (:func:`recorded_vehicle_poses`)."""
     from semslam.evaluation.trajectory_metrics import evaluate_trajectory
-    from semslam.io import Drive
-    from semslam.io.garage_bev import open_garage_bev
     from semslam.io.tum import read_tum
-    from semslam.pipeline.import_bev import move_poses, track_odometry
 
-    source = Drive.open(drive).info.source
-    rec = open_garage_bev(src)
-    poses = move_poses(rec.odometry_poses, source["vehicle_origin_m"],
-                       math.radians(source["heading_offset_deg"]))
-    poses[:, 2] = track_odometry(rec.odometry_t, poses)[2]
     t, est = read_tum(tum)
-    e = evaluate_trajectory(t, est, rec.odometry_t, poses)
+    e = evaluate_trajectory(t, est, *recorded_vehicle_poses(drive, src))
     return {k: round(e[k], 3) for k in ("ate_rmse_m", "ate_p95_m", "ate_max_m",
                                         "yaw_rmse_deg")}
 

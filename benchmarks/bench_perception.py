@@ -64,10 +64,15 @@ def dmpr_protocol_detections(pts: np.ndarray, size: int = 600) -> np.ndarray:
     return ((pts >= DMPR_BORDER_PX) & (pts <= size - 1 - DMPR_BORDER_PX)).all(axis=1)
 
 
+def border_distance(pts: np.ndarray, size: int = 600) -> np.ndarray:
+    """Each of (N, 2) pixel points' distance (px) to the nearest border of a ``size`` image."""
+    pts = np.asarray(pts, float).reshape(-1, 2)
+    return np.minimum(pts, size - 1 - pts).min(axis=1)
+
+
 def in_border_band(pts: np.ndarray, band: float = PS20_BORDER_PX, size: int = 600) -> np.ndarray:
     """Which (N, 2) points lie within ``band`` px of the border of a ``size`` image."""
-    pts = np.asarray(pts, float).reshape(-1, 2)
-    return np.minimum(pts, size - 1 - pts).min(axis=1) < band
+    return border_distance(pts, size) < band
 
 
 def ps20_label_border_distances() -> np.ndarray:
@@ -76,13 +81,12 @@ def ps20_label_border_distances() -> np.ndarray:
     import json
     import zipfile
 
-    out = []
+    from semslam.io.dmpr_labels import dmpr_labels_from_dict
+
     with zipfile.ZipFile(PS20_LABELS_ZIP) as z:
-        for name in z.namelist():
-            if name.endswith(".json"):
-                marks = np.array(json.loads(z.read(name))["marks"], float).reshape(-1, 5)
-                out.append(np.minimum(marks[:, :2], 599 - marks[:, :2]).min(axis=1))
-    return np.concatenate(out)
+        return np.concatenate([
+            border_distance(dmpr_labels_from_dict(json.loads(z.read(name)), name).points)
+            for name in z.namelist() if name.endswith(".json")])
 
 
 def real_dmpr_protocol(perception: TopviewPerception) -> dict:
