@@ -15,7 +15,10 @@ Stages, each re-runnable:
 2. train: a small CNN on ``--threads`` CPU threads for at most ``--minutes``: binary
    cross-entropy, plus on the positives the move and the turn (:func:`_loss`);
    photometric augmentation and left-right mirrors (a mirrored T or L junction is one);
-   fixed seeds;
+   fixed seeds; two options the shipped model does not use (tried, not kept:
+   ``BENCHMARKS.md``): ``--scene-augment`` (paving joints, hard shadows, stitching seams)
+   and ``--line-end-negatives`` (positives with their entrance bar painted out, as
+   negatives);
 3. export: ONNX (opset 17, input ``(N, 64, 64, 3)`` uint8 BGR, output ``(N, 5)`` float32:
    probability, move right and up, the turn's cosine and sine), written atomically,
    checked against torch;
@@ -239,17 +242,118 @@ def _exported(net):
     return Verdict().eval()
 
 
-def _augment(batch: np.ndarray, target: np.ndarray,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+_ROWS, _COLS = np.mgrid[0:64, 0:64].astype(np.float32) - np.float32(31.5)
+
+
+def _half_plane(rng: np.random.Generator) -> np.ndarray:
+    """A (64, 64) float32 mask, 1 on one side of a random line through the patch, with an
+    edge 0.3-3 px soft."""
+    a = rng.uniform(0.0, 2.0 * math.pi)
+    d = _COLS * math.cos(a) + _ROWS * math.sin(a) - rng.uniform(-24.0, 24.0)
+    return (1.0 / (1.0 + np.exp(np.clip(-d / rng.uniform(0.3, 3.0), -30, 30)))).astype(np.float32)
+
+
+def _pavement(rng: np.random.Generator) -> np.ndarray:
+    """A (64, 64) float32 factor <= 1: the dark joints of bricks or tiles laid at a random
+    angle (rows 4-12 px apart, bricks 1-3 rows long), as paving shows through paint."""
+    a = rng.uniform(0.0, math.pi)
+    u = _COLS * math.cos(a) + _ROWS * math.sin(a) + rng.uniform(0.0, 50.0)
+    v = -_COLS * math.sin(a) + _ROWS * math.cos(a) + rng.uniform(0.0, 50.0)
+    h = rng.uniform(4.0, 12.0)
+    length = h * rng.choice([1.0, rng.uniform(1.5, 3.0)])
+    row = np.floor(v / h)
+    joint_w = rng.uniform(0.6, 1.6)
+    joint = ((v % h) < joint_w) | (((u + (row % 2) * length / 2.0) % length) < joint_w)
+    soft = cv2.GaussianBlur(joint.astype(np.float32), (0, 0), 0.6)
+    return 1.0 - np.float32(rng.uniform(0.1, 0.45)) * soft
+
+
+_SCALE = 96.0 / 64.0  # top-view pixels per patch pixel (SPAN_PX / PATCH_PX)
+
+
+def bare_line_end(patch: np.ndarray, target: np.ndarray) -> np.ndarray | None:
+    """The patch of a labelled junction with its entrance bar painted out (ground copied
+    from beyond it), so that only the separator, ending at the point, is left; None when
+    the separator cannot be made out. float32 (64, 64, 3) in and out."""
+    mr, mu, cos_t, sin_t = (float(x) for x in target)
+    th = math.atan2(sin_t, cos_t)
+    pc, pr = mr / _SCALE, -mu / _SCALE  # the point, patch px from the centre (right, down)
+    sx, sy = math.sin(th), -math.cos(th)  # along the separator, into the slot
+    bx, by = math.cos(th), math.sin(th)   # along the entrance bar
+    a = (_COLS - pc) * sx + (_ROWS - pr) * sy
+    b = (_COLS - pc) * bx + (_ROWS - pr) * by
+    grey = patch.mean(axis=2)
+    # across the separator, 10-20 px into the slot: how wide the bright line is
+    bb = np.arange(-12, 12.5, 1.0, dtype=np.float32)
+    prof = []
+    for aa in (10.0, 13.0, 16.0, 19.0):
+        xs = 31.5 + pc + aa * sx + bb * bx
+        ys = 31.5 + pr + aa * sy + bb * by
+        prof.append(cv2.remap(grey, xs[None].astype(np.float32), ys[None].astype(np.float32),
+                              cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)[0])
+    p = np.mean(prof, axis=0)
+    if p.max() - p.min() < 25.0:
+        return None
+    bright = p > (p.max() + p.min()) / 2.0
+    if not bright[10:15].any():
+        return None
+    hw = bright.sum() / 2.0
+    lo, hi = -hw - 2.5, hw + 2.5
+    erase = (a >= lo) & (a <= hi) & ~((a >= 0.0) & (np.abs(b) <= hw + 1.5))
+    src_a = 2.0 * lo - a  # mirrored across the bar's outer edge
+    map_x = (31.5 + pc + src_a * sx + b * bx).astype(np.float32)
+    map_y = (31.5 + pr + src_a * sy + b * by).astype(np.float32)
+    ground = cv2.remap(patch, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    m = cv2.GaussianBlur(erase.astype(np.float32), (0, 0), 0.7)[..., None]
+    return m * ground + (1.0 - m) * patch
+
+
+def _scene_augment(f: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """What real surround views show and the simulator does not draw (float32 NHWC in
+    place): paving joints, hard shadows across the patch, and a stitching seam beyond
+    which the view is smeared and lit differently."""
+    for k in np.nonzero(rng.random(len(f)) < 0.25)[0]:
+        f[k] *= _pavement(rng)[..., None]
+    for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
+        f[k] *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
+    for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
+        if rng.random() < 0.5:
+            other = cv2.GaussianBlur(f[k], (0, 0), rng.uniform(0.8, 2.5))
+        else:  # smeared along a random direction, as a stitched view far from its camera
+            n = int(rng.integers(3, 10))
+            kernel = np.zeros((n, n), np.float32)
+            kernel[n // 2] = 1.0 / n
+            turn = cv2.getRotationMatrix2D(((n - 1) / 2.0, (n - 1) / 2.0),
+                                           rng.uniform(0.0, 180.0), 1.0)
+            kernel = cv2.warpAffine(kernel, turn, (n, n))
+            other = cv2.filter2D(f[k], -1, kernel / max(float(kernel.sum()), 1e-6))
+        other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
+        m = _half_plane(rng)[..., None]
+        f[k] = m * other + (1.0 - m) * f[k]
+    return f
+
+
+def _augment(batch: np.ndarray, target: np.ndarray, rng: np.random.Generator,
+             scene: bool = False, y: np.ndarray | None = None, line_ends: float = 0.0
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Photometric changes per patch and left-right mirrors (uint8 NHWC in and out; a
-    mirror negates the move to the right and the turn's sine)."""
+    mirror negates the move to the right and the turn's sine); with ``scene`` also
+    :func:`_scene_augment`; a share ``line_ends`` of the positives in ``y`` (changed in
+    place) made negatives by :func:`bare_line_end`."""
     f = batch.astype(np.float32)
     target = target.copy()
     n = len(f)
+    if line_ends > 0.0 and y is not None:
+        for k in np.nonzero((y > 0.5) & (rng.random(n) < line_ends))[0]:
+            bare = bare_line_end(f[k], target[k])
+            if bare is not None:
+                f[k], y[k] = bare, 0.0
     mirror = rng.random(n) < 0.5
     f[mirror] = f[mirror, :, ::-1]
     target[mirror, 0] *= -1.0
     target[mirror, 3] *= -1.0
+    if scene:
+        f = _scene_augment(f, rng)
     f *= rng.uniform(0.8, 1.2, size=(n, 1, 1, 3)).astype(np.float32)  # colour cast
     mean = f.mean(axis=(1, 2, 3), keepdims=True)
     gain = rng.uniform(0.5, 1.4, size=(n, 1, 1, 1)).astype(np.float32)
@@ -311,10 +415,12 @@ def train(args: argparse.Namespace) -> None:
         for group in opt.param_groups:
             group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
         idx = rng.integers(0, len(y), args.batch)
-        xb, tb = _augment(patches[idx], target[idx], rng)
+        yb = y[idx].copy()
+        xb, tb = _augment(patches[idx], target[idx], rng, args.scene_augment, yb,
+                          args.line_end_negatives)
         x = torch.from_numpy(xb).permute(0, 3, 1, 2).float() / 127.5 - 1.0
         net.train()
-        loss = _loss(net(x), torch.from_numpy(y[idx]), torch.from_numpy(tb))
+        loss = _loss(net(x), torch.from_numpy(yb), torch.from_numpy(tb))
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -450,6 +556,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--scene-augment", action=argparse.BooleanOptionalAction, default=False,
+                   help="train: also paving joints, hard shadows and stitching seams")
+    p.add_argument("--line-end-negatives", type=float, default=0.0,
+                   help="train: this share of the positives made bare line ends (negatives)")
     args = p.parse_args(argv)
     if args.stage == "mine":
         mine(args.sets.split(","), args.cache, args.workers)
