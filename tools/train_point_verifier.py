@@ -242,6 +242,7 @@ def _exported(net):
     return Verdict().eval()
 
 
+# each patch pixel's row and column, from the patch centre
 _ROWS, _COLS = np.mgrid[0:64, 0:64].astype(np.float32) - np.float32(31.5)
 
 
@@ -271,7 +272,7 @@ def _pavement(rng: np.random.Generator) -> np.ndarray:
 _SCALE = 96.0 / 64.0  # top-view pixels per patch pixel (SPAN_PX / PATCH_PX)
 
 
-def bare_line_end(patch: np.ndarray, target: np.ndarray) -> np.ndarray | None:
+def _bare_line_end(patch: np.ndarray, target: np.ndarray) -> np.ndarray | None:
     """The patch of a labelled junction with its entrance bar painted out (ground copied
     from beyond it), so that only the separator, ending at the point, is left; None when
     the separator cannot be made out. float32 (64, 64, 3) in and out."""
@@ -339,13 +340,13 @@ def _augment(batch: np.ndarray, target: np.ndarray, rng: np.random.Generator,
     """Photometric changes per patch and left-right mirrors (uint8 NHWC in and out; a
     mirror negates the move to the right and the turn's sine); with ``scene`` also
     :func:`_scene_augment`; a share ``line_ends`` of the positives in ``y`` (changed in
-    place) made negatives by :func:`bare_line_end`."""
+    place) made negatives by :func:`_bare_line_end`."""
     f = batch.astype(np.float32)
     target = target.copy()
     n = len(f)
     if line_ends > 0.0 and y is not None:
         for k in np.nonzero((y > 0.5) & (rng.random(n) < line_ends))[0]:
-            bare = bare_line_end(f[k], target[k])
+            bare = _bare_line_end(f[k], target[k])
             if bare is not None:
                 f[k], y[k] = bare, 0.0
     mirror = rng.random(n) < 0.5
