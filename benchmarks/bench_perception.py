@@ -41,6 +41,7 @@ from _common import report
 from semslam.evaluation.detection_metrics import DetectionCounts, match_points, score_image
 from semslam.io.dmpr_labels import read_dmpr_labels
 from semslam.io.images import read_image
+from semslam.perception.slot_ids import SlotIdReader
 from semslam.perception.slots import SlotDetector
 from semslam.perception.topview_perception import TopviewPerception, into_slot_direction
 from semslam.pipeline.detect import evaluate_detection_folder
@@ -257,16 +258,20 @@ def main() -> None:
                         "held-out test worlds; 100 the validation worlds thresholds are chosen on)")
     parser.add_argument("--per-world", type=int, default=5)
     parser.add_argument("--json", default=None)
-    parser.add_argument("--points-model", type=Path, default=None,
-                        help="another marking-point ONNX file (default: the shipped one)")
+    parser.add_argument("--points-model", type=Path, nargs="+", default=None,
+                        help="other marking-point ONNX files, grids averaged (default: the "
+                        "shipped pair)")
     parser.add_argument("--no-verify", action="store_true",
                         help="the marking-point grid alone, without the verifier's second look")
     parser.add_argument("--verifier", type=Path, default=None,
                         help="another verifier ONNX file (default: the shipped one)")
+    parser.add_argument("--id-model", type=Path, default=None,
+                        help="another slot-ID ONNX file (default: the shipped one)")
     args = parser.parse_args()
     slots = SlotDetector(args.points_model, verify=not args.no_verify,
                          verifier_path=args.verifier)
-    perception = TopviewPerception(lines=False, slot_detector=slots)
+    perception = TopviewPerception(lines=False, slot_detector=slots,
+                                   id_reader=SlotIdReader(args.id_model))
     sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),
                     args.per_world)
     border = ps20_label_border_distances()

@@ -3,7 +3,7 @@
 Stages, each re-runnable:
 
 1. mine: simulated top views of worlds the marking-point CNN never trained on; the
-   shipped pair (``MarkingPointDetector(verify=False)``) at ``CANDIDATE_THRESHOLD``; each
+   float grid pair (``FLOAT_MODELS``, ``verify=False``) at ``CANDIDATE_THRESHOLD``; each
    candidate is positive when a visible labelled point lies within ``REFINE_PX`` of it
    that no stronger candidate took (:func:`assign_nearby`), with the move and turn onto
    that point as targets (:func:`refinement_target`); candidates near a covered label and
@@ -69,14 +69,18 @@ CHUNK = 20  # worlds per training shard; an evaluation set is one shard, so that
 
 def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
     from semslam.evaluation.detection_metrics import match_points
-    from semslam.perception.marking_points import MarkingPointDetector
+    from semslam.perception.marking_points import FLOAT_MODELS, MarkingPointDetector
+    from semslam.perception.onnx_model import model_path
     from semslam.perception.point_verifier import crop_point_patches
     from semslam.simulation.topview_samples import sample_topviews
 
     name, seeds, per_world, seed, jitter, path = job
     if os.path.exists(path):
         return path
-    detector = MarkingPointDetector(threshold=CANDIDATE_THRESHOLD, verify=False)
+    # the float pair the verifier was trained behind (the 8-bit twins came later)
+    detector = MarkingPointDetector(
+        [model_path(name) for name in FLOAT_MODELS], threshold=CANDIDATE_THRESHOLD, verify=False
+    )
     rng = np.random.default_rng(seed + 17)
     cols: dict[str, list] = {k: [] for k in
                              ("patches", "y", "y_near", "target", "conf", "view", "uv",

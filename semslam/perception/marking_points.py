@@ -2,11 +2,12 @@
 
 The networks (``models/marking_points.onnx`` and ``models/marking_points_long.onnx``, two
 runs of ``tools/train_marking_points.py``, see ``models/marking_points.md``; by default the
-detector averages their grids) take the top view resized to a square ``(1, S, S, 3)``
-uint8 BGR image and return a ``(1, 6, G, G)`` grid: per cell the confidence that a
-marking point lies in it, the probability that it is an L junction, the point's x and y
-offset inside the cell (0-1) and the cosine and sine of its direction (image coordinates,
-``atan2(dv, du)``, from the junction into the slot along the separator).
+detector averages the grids of their 8-bit twins, :data:`DEFAULT_MODELS`) take the top
+view resized to a square ``(1, S, S, 3)`` uint8 BGR image and return a ``(1, 6, G, G)``
+grid: per cell the confidence that a marking point lies in it, the probability that it is
+an L junction, the point's x and y offset inside the cell (0-1) and the cosine and sine of
+its direction (image coordinates, ``atan2(dv, du)``, from the junction into the slot along
+the separator).
 
 By default each candidate the grid offers above :data:`CANDIDATE_THRESHOLD` gets a second
 look from the verifier CNN (:mod:`semslam.perception.point_verifier`), on a sharper patch
@@ -54,10 +55,18 @@ DEFAULT_THRESHOLD = 0.55
 """Verified confidence (:func:`verified_confidence`) above which a candidate is a marking
 point: the best F1 on the validation worlds 100-149 (``models/point_verifier.md``)."""
 
-DEFAULT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
-"""The shipped models whose grids are averaged: two runs of the same recipe, whose mean is
-better than either on the simulated views and in precision and F1 on the real ones (real
-recall is the second run's; ``models/marking_points.md``)."""
+FLOAT_MODELS = ("marking_points.onnx", "marking_points_long.onnx")
+"""The trained grid pair: two runs of the same recipe, whose mean is better than either on
+the simulated views and in precision and F1 on the real ones (real recall is the second
+run's; ``models/marking_points.md``)."""
+
+INT8_MODELS = ("marking_points.int8.onnx", "marking_points_long.int8.onnx")
+""":data:`FLOAT_MODELS` quantized to 8 bits (``tools/quantize_models.py``): 2 ms less per
+top view on this 2-core machine, the same points within a few of 2,135 labelled
+(``models/marking_points.md``)."""
+
+DEFAULT_MODELS = INT8_MODELS
+"""The models whose grids the detector averages by default."""
 
 NMS_RADIUS_PX = 10.0
 """Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""
@@ -294,8 +303,11 @@ def shrink(image: np.ndarray, size: int) -> np.ndarray:
 
 __all__ = [
     "CANDIDATE_THRESHOLD",
+    "DEFAULT_MODELS",
     "DEFAULT_THRESHOLD",
+    "FLOAT_MODELS",
     "GRID_THRESHOLD",
+    "INT8_MODELS",
     "NMS_RADIUS_PX",
     "MarkingPoint",
     "MarkingPointDetector",

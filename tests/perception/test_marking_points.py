@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from semslam.errors import PerceptionError
-from semslam.perception.marking_points import DEFAULT_MODELS, MarkingPointDetector, decode_grid
+from semslam.perception.marking_points import (
+    DEFAULT_MODELS,
+    FLOAT_MODELS,
+    INT8_MODELS,
+    MarkingPointDetector,
+    decode_grid,
+)
 from semslam.perception.onnx_model import model_path
 from semslam.perception.point_verifier import PointVerifier
 from semslam.simulation.topview_samples import sample_topviews
@@ -102,6 +108,25 @@ def test_default_grid_is_the_mean_of_the_shipped_models(detector, views):
     pair = MarkingPointDetector([model_path(n) for n in names])  # runs the two at once
     assert np.allclose(pair.grid(image)[0], mean, atol=1e-6)
     assert np.array_equal(pair.grid(image)[0], pair.grid(image)[0])
+
+
+def test_int8_twins_find_the_float_pairs_points(detector, views):
+    """The default pair is the float pair in 8 bits (tools/quantize_models.py): smaller,
+    its grid near the float one, and the same points to within a pixel or two."""
+    assert DEFAULT_MODELS == INT8_MODELS
+    for f, q in zip(FLOAT_MODELS, INT8_MODELS, strict=True):
+        assert model_path(q).stat().st_size < 0.5 * model_path(f).stat().st_size
+    floats = MarkingPointDetector([model_path(n) for n in FLOAT_MODELS])
+    kept = total = 0
+    for s in views:
+        g_float, g_int8 = floats.grid(s.image)[0], detector.grid(s.image)[0]
+        assert np.abs(g_float[0] - g_int8[0]).max() < 0.1  # confidence
+        ref = floats.detect(s.image)
+        uv = np.array([p.uv for p in detector.detect(s.image)]).reshape(-1, 2)
+        for p in ref:
+            total += 1
+            kept += bool(len(uv)) and np.hypot(*(uv - p.uv).T).min() < 2.0
+    assert total >= 10 and kept >= 0.9 * total
 
 
 def test_no_model_list_is_refused():
