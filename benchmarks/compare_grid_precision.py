@@ -24,26 +24,18 @@ from semslam.perception.marking_points import FLOAT_MODELS, INT8_MODELS
 from semslam.perception.onnx_model import model_path
 from semslam.perception.slots import SlotDetector
 from semslam.perception.topview_perception import TopviewPerception
+from semslam.pipeline.bench import route_poses
 from semslam.rig import surround_rig
 from semslam.simulation.render_topview import TopviewRenderer
-from semslam.simulation.route import make_path
 from semslam.simulation.world import make_world
 
 
 def route_views(frames: int, seed: int = 1) -> list[np.ndarray]:
     """The top views ``semslam bench`` times: ``frames`` poses along drive 0's route."""
-    config = SemslamConfig()
     world = make_world("garage", seed)
-    rig = surround_rig()
-    drive = config.simulation.drive
-    path = make_path(world, 0, drive.lane_offset, drive.turn_radius)
-    renderer = TopviewRenderer(world, rig.topview)
-    views = []
-    for n, k in enumerate(np.linspace(0, len(path.points) - 2, frames).astype(int)):
-        d = path.points[k + 1] - path.points[k]
-        pose = np.array([*path.points[k], np.arctan2(d[1], d[0])])
-        views.append(renderer.render(pose, n)[0])
-    return views
+    renderer = TopviewRenderer(world, surround_rig().topview)
+    poses = route_poses(SemslamConfig(), world, frames)
+    return [renderer.render(pose, n)[0] for n, pose in enumerate(poses)]
 
 
 def main() -> None:

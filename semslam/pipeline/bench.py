@@ -27,6 +27,20 @@ def _median_ms(samples: list[float]) -> float:
     return round(statistics.median(samples) * 1e3, 3)
 
 
+def route_poses(config: SemslamConfig, world, frames: int) -> list[np.ndarray]:
+    """``frames`` poses (x, y, yaw; world frame, m and rad) evenly along drive 0's route
+    through ``world`` (lane offset and turn radius from ``config.simulation.drive``)."""
+    from semslam.simulation.route import make_path
+
+    drive = config.simulation.drive
+    path = make_path(world, 0, drive.lane_offset, drive.turn_radius)
+    poses = []
+    for k in np.linspace(0, len(path.points) - 2, frames).astype(int):
+        d = path.points[k + 1] - path.points[k]
+        poses.append(np.array([*path.points[k], np.arctan2(d[1], d[0])]))
+    return poses
+
+
 def perception_timings(config: SemslamConfig, frames: int = 40, seed: int = 1) -> dict[str, Any]:
     """Median per-stage times (ms) over ``frames`` frames along the route of a simulated
     garage drive (lane offset and turn radius from ``config.simulation.drive``)."""
@@ -39,19 +53,12 @@ def perception_timings(config: SemslamConfig, frames: int = 40, seed: int = 1) -
     from semslam.simulation.render_fisheye import render_fisheye_rig
     from semslam.simulation.render_front import FrontRenderer
     from semslam.simulation.render_topview import TopviewRenderer
-    from semslam.simulation.route import make_path
     from semslam.simulation.world import make_world
 
     cv2.setNumThreads(1)
     world = make_world("garage", seed)
     rig = surround_rig()
-    drive = config.simulation.drive
-    path = make_path(world, 0, drive.lane_offset, drive.turn_radius)
-    picks = np.linspace(0, len(path.points) - 2, frames).astype(int)
-    poses = []
-    for k in picks:
-        d = path.points[k + 1] - path.points[k]
-        poses.append(np.array([*path.points[k], np.arctan2(d[1], d[0])]))
+    poses = route_poses(config, world, frames)
     fisheyes = [c for name, c in rig.cameras.items() if name.startswith("fisheye_")]
     builder = TopviewBuilder(rig)
     topview_renderer = TopviewRenderer(world, rig.topview)
@@ -142,4 +149,4 @@ def run_bench(
     return result
 
 
-__all__ = ["mapping_timings", "perception_timings", "run_bench"]
+__all__ = ["mapping_timings", "perception_timings", "route_poses", "run_bench"]
