@@ -9,8 +9,8 @@ training worlds 1000 .. 1000 + ``--worlds`` - 1 (never the benchmark's test worl
 the validation worlds 100-149 nor a real image), shrunk to the input as the detector does.
 
 These settings are the best of those measured (``BENCHMARKS.md``, "The grid pair in 8
-bits"): the same points within a few of the 2,135 labelled on the held-out views, and 2 ms
-less per top view on this machine. The verifier and the ID reader stay float: in 8 bits
+bits"): the same points within a few of the 2,135 labelled on the held-out views, and 3-4
+ms less per top view on this machine. The verifier and the ID reader stay float: in 8 bits
 they were no faster, and the ID reader's confidences lost their calibration.
 
     PYTHONPATH=. python tools/quantize_models.py [--worlds 100] [--per-world 3]
@@ -33,7 +33,6 @@ from semslam.simulation.topview_samples import sample_topviews
 
 CALIBRATION_WORLDS = 1000
 """First world seed of the calibration views: training worlds of the grid and ID models."""
-
 
 PERCENTILE = 99.9999
 """Percentile of each activation's calibration values its 8-bit range covers."""

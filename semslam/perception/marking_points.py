@@ -61,7 +61,7 @@ the simulated views and in precision and F1 on the real ones (real recall is the
 run's; ``models/marking_points.md``)."""
 
 INT8_MODELS = ("marking_points.int8.onnx", "marking_points_long.int8.onnx")
-""":data:`FLOAT_MODELS` quantized to 8 bits (``tools/quantize_models.py``): 2 ms less per
+""":data:`FLOAT_MODELS` quantized to 8 bits (``tools/quantize_models.py``): 3-4 ms less per
 top view on this 2-core machine, the same points within a few of 2,135 labelled
 (``models/marking_points.md``)."""
 
