@@ -143,8 +143,62 @@ def _labels_at_input(data: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]
 # ----------------------------------------------------------------------------- augmentation
 
 
+_ROWS, _COLS = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) - np.float32((INPUT - 1) / 2)
+
+
+def _half_plane(rng: np.random.Generator) -> np.ndarray:
+    """An (INPUT, INPUT) float32 mask, 1 on one side of a random line through the view's
+    middle part, with an edge 0.3-3 px soft."""
+    a = rng.uniform(0.0, 2.0 * math.pi)
+    d = _COLS * math.cos(a) + _ROWS * math.sin(a) - rng.uniform(-0.4, 0.4) * INPUT
+    return (1.0 / (1.0 + np.exp(np.clip(-d / rng.uniform(0.3, 3.0), -30, 30)))).astype(np.float32)
+
+
+def _pavement(rng: np.random.Generator) -> np.ndarray:
+    """An (INPUT, INPUT) float32 factor <= 1: the dark joints of bricks or tiles laid at a
+    random angle (rows 3-8 px apart at the input's 2.3 cm per px, bricks 1-3 rows long)."""
+    a = rng.uniform(0.0, math.pi)
+    u = _COLS * math.cos(a) + _ROWS * math.sin(a) + rng.uniform(0.0, 50.0)
+    v = -_COLS * math.sin(a) + _ROWS * math.cos(a) + rng.uniform(0.0, 50.0)
+    h = rng.uniform(3.0, 8.0)
+    length = h * rng.choice([1.0, rng.uniform(1.5, 3.0)])
+    row = np.floor(v / h)
+    joint_w = rng.uniform(0.5, 1.1)
+    joint = ((v % h) < joint_w) | (((u + (row % 2) * length / 2.0) % length) < joint_w)
+    soft = cv2.GaussianBlur(joint.astype(np.float32), (0, 0), 0.5)
+    return 1.0 - np.float32(rng.uniform(0.1, 0.45)) * soft
+
+
+def scene_augment(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """What real surround views show and the simulator does not draw (uint8 in and out):
+    paving joints, a hard shadow over part of the view, a stitching seam beyond which the
+    view is blurred or smeared and lit differently (``--scene-augment``; the verifier's
+    ``tools/train_point_verifier.py`` has the same at its patch scale)."""
+    f = img.astype(np.float32)
+    if rng.random() < 0.25:
+        f *= _pavement(rng)[..., None]
+    if rng.random() < 0.3:
+        f *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
+    if rng.random() < 0.3:
+        if rng.random() < 0.5:
+            other = cv2.GaussianBlur(f, (0, 0), rng.uniform(0.6, 1.8))
+        else:  # smeared along a random direction, as a stitched view far from its camera
+            n = int(rng.integers(3, 8))
+            kernel = np.zeros((n, n), np.float32)
+            kernel[n // 2] = 1.0 / n
+            turn = cv2.getRotationMatrix2D(((n - 1) / 2.0, (n - 1) / 2.0),
+                                           rng.uniform(0.0, 180.0), 1.0)
+            kernel = cv2.warpAffine(kernel, turn, (n, n))
+            other = cv2.filter2D(f, -1, kernel / max(float(kernel.sum()), 1e-6))
+        other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
+        m = _half_plane(rng)[..., None]
+        f = m * other + (1.0 - m) * f
+    return np.clip(f, 0, 255).astype(np.uint8)
+
+
 def augment(
-    image: np.ndarray, labels: tuple[np.ndarray, ...], rng: np.random.Generator
+    image: np.ndarray, labels: tuple[np.ndarray, ...], rng: np.random.Generator,
+    scene: bool = False,
 ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
     """A randomly transformed copy of one input-size view and its labels.
 
@@ -152,7 +206,8 @@ def augment(
     scale 0.95-1.05, shift up to 8 px, mirror left-right; points and directions go
     through the same affine map (a mirror flips du), points leaving the image are dropped.
     Colour: brightness, contrast, gamma, per-channel gains, hue shift, yellowed or greyed
-    paint, illumination gradients, blur, noise, JPEG.
+    paint, illumination gradients, blur, noise, JPEG; with ``scene`` first
+    :func:`scene_augment`.
     """
     pts, dirs, shapes, occ = labels
     n = INPUT
@@ -174,6 +229,8 @@ def augment(
         nd = np.arctan2(d[:, 1], d[:, 0])
         keep = (q[:, 0] >= -0.5) & (q[:, 0] < n - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] < n - 0.5)
         pts, dirs, shapes, occ = q[keep], nd[keep], shapes[keep], occ[keep]
+    if scene:
+        img = scene_augment(img, rng)
     img = _photometric(img, rng)
     return img, (pts, dirs, shapes, occ)
 
@@ -352,7 +409,7 @@ def export_onnx(net, out: Path) -> None:
 
 
 def _augmented_batch(
-    images: np.ndarray, labels: list, idx: np.ndarray, seed: int
+    images: np.ndarray, labels: list, idx: np.ndarray, seed: int, scene: bool = False
 ) -> tuple[np.ndarray, ...]:
     """One augmented batch: (uint8 NHWC images, targets, weights), from its own seed.
 
@@ -362,7 +419,7 @@ def _augmented_batch(
     rng = np.random.default_rng(seed)
     xs, ts, ws = [], [], []
     for i in idx:
-        img, lab = augment(images[i], labels[i], rng)
+        img, lab = augment(images[i], labels[i], rng, scene)
         t, w = encode_targets(lab)
         xs.append(img)
         ts.append(t)
@@ -400,7 +457,8 @@ def train(args: argparse.Namespace) -> None:
         for e, order in enumerate(rng.permutation(n) for _ in range(args.epochs))
         for b in range(steps_per_epoch)
     ]
-    batches = (_augmented_batch(images, labels, idx, seed) for idx, seed in jobs)
+    batches = (_augmented_batch(images, labels, idx, seed, args.scene_augment)
+               for idx, seed in jobs)
     t0 = time.time()
     step = 0
     progress = 0.0
@@ -597,6 +655,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--vary-paint", action="store_true",
                    help="training worlds with thinner lines and stub separators at random")
     p.add_argument("--threshold", type=float, default=None, help="point confidence (eval)")
+    p.add_argument("--scene-augment", action="store_true",
+                   help="also paving joints, hard shadows and stitching seams (scene_augment)")
     args = p.parse_args(argv)
     if not args.eval_only:
         train(args)
