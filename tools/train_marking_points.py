@@ -149,24 +149,17 @@ _ROWS, _COLS = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) - np.float32((INPUT
 def _half_plane(rng: np.random.Generator) -> np.ndarray:
     """An (INPUT, INPUT) float32 mask, 1 on one side of a random line through the view's
     middle part, with an edge 0.3-3 px soft."""
-    a = rng.uniform(0.0, 2.0 * math.pi)
-    d = _COLS * math.cos(a) + _ROWS * math.sin(a) - rng.uniform(-0.4, 0.4) * INPUT
-    return (1.0 / (1.0 + np.exp(np.clip(-d / rng.uniform(0.3, 3.0), -30, 30)))).astype(np.float32)
+    from train_point_verifier import _half_plane as half_plane
+
+    return half_plane(rng, _ROWS, _COLS, reach=0.4 * INPUT)
 
 
 def _pavement(rng: np.random.Generator) -> np.ndarray:
     """An (INPUT, INPUT) float32 factor <= 1: the dark joints of bricks or tiles laid at a
     random angle (rows 3-8 px apart at the input's 2.3 cm per px, bricks 1-3 rows long)."""
-    a = rng.uniform(0.0, math.pi)
-    u = _COLS * math.cos(a) + _ROWS * math.sin(a) + rng.uniform(0.0, 50.0)
-    v = -_COLS * math.sin(a) + _ROWS * math.cos(a) + rng.uniform(0.0, 50.0)
-    h = rng.uniform(3.0, 8.0)
-    length = h * rng.choice([1.0, rng.uniform(1.5, 3.0)])
-    row = np.floor(v / h)
-    joint_w = rng.uniform(0.5, 1.1)
-    joint = ((v % h) < joint_w) | (((u + (row % 2) * length / 2.0) % length) < joint_w)
-    soft = cv2.GaussianBlur(joint.astype(np.float32), (0, 0), 0.5)
-    return 1.0 - np.float32(rng.uniform(0.1, 0.45)) * soft
+    from train_point_verifier import _pavement as pavement
+
+    return pavement(rng, _ROWS, _COLS, spacing=(3.0, 8.0), joint=(0.5, 1.1), blur=0.5)
 
 
 def scene_augment(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -180,19 +173,9 @@ def scene_augment(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     if rng.random() < 0.3:
         f *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
     if rng.random() < 0.3:
-        if rng.random() < 0.5:
-            other = cv2.GaussianBlur(f, (0, 0), rng.uniform(0.6, 1.8))
-        else:  # smeared along a random direction, as a stitched view far from its camera
-            n = int(rng.integers(3, 8))
-            kernel = np.zeros((n, n), np.float32)
-            kernel[n // 2] = 1.0 / n
-            turn = cv2.getRotationMatrix2D(((n - 1) / 2.0, (n - 1) / 2.0),
-                                           rng.uniform(0.0, 180.0), 1.0)
-            kernel = cv2.warpAffine(kernel, turn, (n, n))
-            other = cv2.filter2D(f, -1, kernel / max(float(kernel.sum()), 1e-6))
-        other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
-        m = _half_plane(rng)[..., None]
-        f = m * other + (1.0 - m) * f
+        from train_point_verifier import _seam
+
+        f = _seam(f, rng, _half_plane, blur=(0.6, 1.8), smear=(3, 8))
     return np.clip(f, 0, 255).astype(np.uint8)
 
 

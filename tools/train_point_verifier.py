@@ -250,26 +250,30 @@ def _exported(net):
 _ROWS, _COLS = np.mgrid[0:64, 0:64].astype(np.float32) - np.float32(31.5)
 
 
-def _half_plane(rng: np.random.Generator) -> np.ndarray:
-    """A (64, 64) float32 mask, 1 on one side of a random line through the patch, with an
-    edge 0.3-3 px soft."""
+def _half_plane(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
+                reach: float = 24.0) -> np.ndarray:
+    """A float32 mask the shape of ``rows`` (default the patch), 1 on one side of a random
+    line passing within ``reach`` px of the centre, with an edge 0.3-3 px soft."""
     a = rng.uniform(0.0, 2.0 * math.pi)
-    d = _COLS * math.cos(a) + _ROWS * math.sin(a) - rng.uniform(-24.0, 24.0)
+    d = cols * math.cos(a) + rows * math.sin(a) - rng.uniform(-reach, reach)
     return (1.0 / (1.0 + np.exp(np.clip(-d / rng.uniform(0.3, 3.0), -30, 30)))).astype(np.float32)
 
 
-def _pavement(rng: np.random.Generator) -> np.ndarray:
-    """A (64, 64) float32 factor <= 1: the dark joints of bricks or tiles laid at a random
-    angle (rows 4-12 px apart, bricks 1-3 rows long), as paving shows through paint."""
+def _pavement(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
+              spacing: tuple[float, float] = (4.0, 12.0), joint: tuple[float, float] = (0.6, 1.6),
+              blur: float = 0.6) -> np.ndarray:
+    """A float32 factor <= 1 the shape of ``rows`` (default the patch): the dark joints of
+    bricks or tiles laid at a random angle (rows ``spacing`` px apart, bricks 1-3 rows
+    long, joints ``joint`` px wide), as paving shows through paint."""
     a = rng.uniform(0.0, math.pi)
-    u = _COLS * math.cos(a) + _ROWS * math.sin(a) + rng.uniform(0.0, 50.0)
-    v = -_COLS * math.sin(a) + _ROWS * math.cos(a) + rng.uniform(0.0, 50.0)
-    h = rng.uniform(4.0, 12.0)
+    u = cols * math.cos(a) + rows * math.sin(a) + rng.uniform(0.0, 50.0)
+    v = -cols * math.sin(a) + rows * math.cos(a) + rng.uniform(0.0, 50.0)
+    h = rng.uniform(*spacing)
     length = h * rng.choice([1.0, rng.uniform(1.5, 3.0)])
     row = np.floor(v / h)
-    joint_w = rng.uniform(0.6, 1.6)
-    joint = ((v % h) < joint_w) | (((u + (row % 2) * length / 2.0) % length) < joint_w)
-    soft = cv2.GaussianBlur(joint.astype(np.float32), (0, 0), 0.6)
+    joint_w = rng.uniform(*joint)
+    lines = ((v % h) < joint_w) | (((u + (row % 2) * length / 2.0) % length) < joint_w)
+    soft = cv2.GaussianBlur(lines.astype(np.float32), (0, 0), blur)
     return 1.0 - np.float32(rng.uniform(0.1, 0.45)) * soft
 
 
@@ -322,20 +326,28 @@ def _scene_augment(f: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
         f[k] *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
     for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
-        if rng.random() < 0.5:
-            other = cv2.GaussianBlur(f[k], (0, 0), rng.uniform(0.8, 2.5))
-        else:  # smeared along a random direction, as a stitched view far from its camera
-            n = int(rng.integers(3, 10))
-            kernel = np.zeros((n, n), np.float32)
-            kernel[n // 2] = 1.0 / n
-            turn = cv2.getRotationMatrix2D(((n - 1) / 2.0, (n - 1) / 2.0),
-                                           rng.uniform(0.0, 180.0), 1.0)
-            kernel = cv2.warpAffine(kernel, turn, (n, n))
-            other = cv2.filter2D(f[k], -1, kernel / max(float(kernel.sum()), 1e-6))
-        other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
-        m = _half_plane(rng)[..., None]
-        f[k] = m * other + (1.0 - m) * f[k]
+        f[k] = _seam(f[k], rng, _half_plane)
     return f
+
+
+def _seam(f: np.ndarray, rng: np.random.Generator, half_plane,
+          blur: tuple[float, float] = (0.8, 2.5), smear: tuple[int, int] = (3, 10)) -> np.ndarray:
+    """``f`` (float32 HWC) with a stitching seam: the view blurred by ``blur`` px or smeared
+    along a random direction over ``smear`` px (as a stitched view far from its camera),
+    tinted, and laid over ``f`` beyond the line of ``half_plane(rng)`` (drawn last)."""
+    if rng.random() < 0.5:
+        other = cv2.GaussianBlur(f, (0, 0), rng.uniform(*blur))
+    else:
+        n = int(rng.integers(*smear))
+        kernel = np.zeros((n, n), np.float32)
+        kernel[n // 2] = 1.0 / n
+        turn = cv2.getRotationMatrix2D(((n - 1) / 2.0, (n - 1) / 2.0),
+                                       rng.uniform(0.0, 180.0), 1.0)
+        kernel = cv2.warpAffine(kernel, turn, (n, n))
+        other = cv2.filter2D(f, -1, kernel / max(float(kernel.sum()), 1e-6))
+    other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
+    m = half_plane(rng)[..., None]
+    return m * other + (1.0 - m) * f
 
 
 def _augment(batch: np.ndarray, target: np.ndarray, rng: np.random.Generator,
