@@ -97,8 +97,8 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, default=100)
     parser.add_argument("--per-world", type=int, default=3)
     args = parser.parse_args()
-    size = onnx_model.load_session(onnx_model.model_path(FLOAT_MODELS[0])).get_inputs()[0]
-    views = calibration_views(args.worlds, args.per_world, int(size.shape[1]))
+    grid_input = onnx_model.load_session(onnx_model.model_path(FLOAT_MODELS[0])).get_inputs()[0]
+    views = calibration_views(args.worlds, args.per_world, int(grid_input.shape[1]))
     for name, twin in zip(FLOAT_MODELS, INT8_MODELS, strict=True):
         src = onnx_model.model_path(name)
         dst = src.with_name(twin)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from train_point_verifier import half_plane, pavement, seam  # tools/: the script's own dir
 
 INPUT = 256  # network input side, px
 GRID = 16  # output cells per side
@@ -149,16 +150,12 @@ _ROWS, _COLS = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) - np.float32((INPUT
 def _half_plane(rng: np.random.Generator) -> np.ndarray:
     """An (INPUT, INPUT) float32 mask, 1 on one side of a random line through the view's
     middle part, with an edge 0.3-3 px soft."""
-    from train_point_verifier import _half_plane as half_plane
-
     return half_plane(rng, _ROWS, _COLS, reach=0.4 * INPUT)
 
 
 def _pavement(rng: np.random.Generator) -> np.ndarray:
     """An (INPUT, INPUT) float32 factor <= 1: the dark joints of bricks or tiles laid at a
     random angle (rows 3-8 px apart at the input's 2.3 cm per px, bricks 1-3 rows long)."""
-    from train_point_verifier import _pavement as pavement
-
     return pavement(rng, _ROWS, _COLS, spacing=(3.0, 8.0), joint=(0.5, 1.1), blur=0.5)
 
 
@@ -173,9 +170,7 @@ def scene_augment(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     if rng.random() < 0.3:
         f *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
     if rng.random() < 0.3:
-        from train_point_verifier import _seam
-
-        f = _seam(f, rng, _half_plane, blur=(0.6, 1.8), smear=(3, 8))
+        f = seam(f, rng, _half_plane, blur=(0.6, 1.8), smear=(3, 8))
     return np.clip(f, 0, 255).astype(np.uint8)
 
 

@@ -250,7 +250,7 @@ def _exported(net):
 _ROWS, _COLS = np.mgrid[0:64, 0:64].astype(np.float32) - np.float32(31.5)
 
 
-def _half_plane(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
+def half_plane(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
                 reach: float = 24.0) -> np.ndarray:
     """A float32 mask the shape of ``rows`` (default the patch), 1 on one side of a random
     line passing within ``reach`` px of the centre, with an edge 0.3-3 px soft."""
@@ -259,7 +259,7 @@ def _half_plane(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.nda
     return (1.0 / (1.0 + np.exp(np.clip(-d / rng.uniform(0.3, 3.0), -30, 30)))).astype(np.float32)
 
 
-def _pavement(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
+def pavement(rng: np.random.Generator, rows: np.ndarray = _ROWS, cols: np.ndarray = _COLS,
               spacing: tuple[float, float] = (4.0, 12.0), joint: tuple[float, float] = (0.6, 1.6),
               blur: float = 0.6) -> np.ndarray:
     """A float32 factor <= 1 the shape of ``rows`` (default the patch): the dark joints of
@@ -322,19 +322,20 @@ def _scene_augment(f: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     place): paving joints, hard shadows across the patch, and a stitching seam beyond
     which the view is smeared and lit differently."""
     for k in np.nonzero(rng.random(len(f)) < 0.25)[0]:
-        f[k] *= _pavement(rng)[..., None]
+        f[k] *= pavement(rng)[..., None]
     for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
-        f[k] *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * _half_plane(rng))[..., None]
+        f[k] *= (1.0 - np.float32(rng.uniform(0.25, 0.65)) * half_plane(rng))[..., None]
     for k in np.nonzero(rng.random(len(f)) < 0.3)[0]:
-        f[k] = _seam(f[k], rng, _half_plane)
+        f[k] = seam(f[k], rng, half_plane)
     return f
 
 
-def _seam(f: np.ndarray, rng: np.random.Generator, half_plane,
+def seam(f: np.ndarray, rng: np.random.Generator, mask,
           blur: tuple[float, float] = (0.8, 2.5), smear: tuple[int, int] = (3, 10)) -> np.ndarray:
     """``f`` (float32 HWC) with a stitching seam: the view blurred by ``blur`` px or smeared
     along a random direction over ``smear`` px (as a stitched view far from its camera),
-    tinted, and laid over ``f`` beyond the line of ``half_plane(rng)`` (drawn last)."""
+    tinted, and laid over ``f`` where ``mask(rng)`` (drawn last, e.g. :func:`half_plane`)
+    is 1."""
     if rng.random() < 0.5:
         other = cv2.GaussianBlur(f, (0, 0), rng.uniform(*blur))
     else:
@@ -346,7 +347,7 @@ def _seam(f: np.ndarray, rng: np.random.Generator, half_plane,
         kernel = cv2.warpAffine(kernel, turn, (n, n))
         other = cv2.filter2D(f, -1, kernel / max(float(kernel.sum()), 1e-6))
     other *= rng.uniform(0.75, 1.25, size=(1, 1, 3)).astype(np.float32)
-    m = half_plane(rng)[..., None]
+    m = mask(rng)[..., None]
     return m * other + (1.0 - m) * f
 
 
