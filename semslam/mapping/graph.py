@@ -57,6 +57,7 @@ class Graph:
         self._threshold = relinearize_threshold
         self._skip = relinearize_skip
         self._updates = 0
+        self.last_result: gtsam.ISAM2Result | None = None  # of the last iSAM2 update
 
     # -- building
     def _insert(self, key: int, value, dim: int) -> None:
@@ -100,6 +101,7 @@ class Graph:
             result = self.isam.update(linear, self._new_values, [self._slot[i] for i in again])
         except RuntimeError as e:  # gtsam's indeterminate system: say so in one line
             raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
+        self.last_result = result
         slots = list(result.getNewFactorsIndices())
         for i, slot in zip(again, slots[: len(again)], strict=True):
             self._slot[i] = slot

@@ -72,3 +72,17 @@ def test_a_factor_is_swapped_not_duplicated_when_relinearised(skip):
     graph = Graph(relinearize_threshold=0.01, relinearize_skip=skip)
     _circle(graph)
     assert graph.isam.getFactorsUnsafe().nrFactors() == graph.factors.size()
+
+
+def test_the_last_isam2_result_is_kept_for_profiling():
+    graph = Graph()
+    assert graph.last_result is None
+    graph.add_pose(X(0), np.zeros(3))
+    graph.add_factor(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+    graph.add_pose(X(1), np.array([1.0, 0.0, 0.0]))
+    graph.add_factor(gtsam.BetweenFactorPose2(X(0), X(1), gtsam.Pose2(1.0, 0.0, 0.0),
+                                              gtsam.noiseModel.Unit.Create(3)))
+    graph.update()
+    assert graph.last_result.getVariablesReeliminated() == 2
+    graph.update()  # nothing new: nothing re-eliminated
+    assert graph.last_result.getVariablesReeliminated() == 0
