@@ -12,7 +12,7 @@ largest conditional and separator, in variables) after the update at or past key
 ``--null-sides`` counts at every check the factors with a null-hypothesis loss (one-candidate
 slot sightings, painted-line detections) that sit on their null side at iSAM2's
 linearisation point but on the measurement's at its current estimate, and the other way
-(slow: every such factor is evaluated twice per check).
+(slow: every such factor is evaluated twice per check, inside the timed updates).
 
     PYTHONPATH=. python benchmarks/profile_relinearisation.py DRIVE [--watch 1000 2000 3000]
         [--cliques-at 2500 4000 5300] [--null-sides]
