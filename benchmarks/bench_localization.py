@@ -163,6 +163,18 @@ def start_observability(drive_dir: Path, starts: int, seed: int) -> dict:
             "only_lines_within_2s": anything - landmarks, "nothing_within_2s": starts - anything}
 
 
+def simulate_and_map(root: Path, seed: int) -> tuple[Path, Path]:
+    """Drives 0 and 1 of the `garage` world ``seed`` simulated under ``root`` (no images),
+    drive 0 mapped with noisy observations: drive 1's folder and the map's path."""
+    d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
+    run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images"])
+    run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive", "1",
+         "--no-images"])
+    map_path = root / f"s{seed}.map.json"
+    run(["map", str(d0), "-o", str(map_path), "--observations", "noisy", "--no-progress"])
+    return d1, map_path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1])
@@ -175,18 +187,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for seed in args.seeds:
-            d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
             if args.observability_only:
+                d1 = root / f"s{seed}d1"
                 run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive",
                      "1", "--no-images"])
                 rows.append({"seed": seed, **start_observability(d1, args.starts, seed)})
                 print(json.dumps(rows[-1]), flush=True)
                 continue
-            run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images"])
-            run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive", "1",
-                 "--no-images"])
-            map_path = root / f"s{seed}.map.json"
-            run(["map", str(d0), "-o", str(map_path), "--observations", "noisy", "--no-progress"])
+            d1, map_path = simulate_and_map(root, seed)
             variants = {
                 "ekf (default)": {},
                 "sigma points (Houben)": {"SEMSLAM_LOCALIZATION__UPDATE": "sigma"},

@@ -31,8 +31,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _common import run_semslam
-from bench_localization import _random_starts, _sees
+from bench_localization import _random_starts, _sees, _truth_at, simulate_and_map
 
 from semslam.geometry import between, wrap_angle
 from semslam.motion import integrate_odometry
@@ -149,8 +148,7 @@ def probe(drive_dir: Path, map_path: Path, seed: int) -> list[dict]:
         if _sees(exact, first, 2.0, lines=False) or not _sees(exact, first, 2.0, lines=True):
             continue
         points, last = merged_line_samples(frames, first, odo_pose_at)
-        truth = truth_poses[min(np.searchsorted(truth_t, frames[last].t - 1e-9),
-                                len(truth_t) - 1)]
+        truth = _truth_at(truth_t, truth_poses, frames[last].t)
         if not len(points):
             rows.append({"seed": seed, "start": first, "samples": 0})
             continue
@@ -182,15 +180,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for seed in args.seeds:
-            d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
-            run_semslam(["simulate", str(d0), "--preset", "garage", "--seed", str(seed),
-                         "--no-images"])
-            run_semslam(["simulate", str(d1), "--preset", "garage", "--seed", str(seed),
-                         "--drive", "1", "--no-images"])
-            map_path = root / f"s{seed}.map.json"
-            run_semslam(["map", str(d0), "-o", str(map_path), "--observations", "noisy",
-                         "--no-progress"])
-            rows += probe(d1, map_path, seed)
+            rows += probe(*simulate_and_map(root, seed), seed)
     probed = [r for r in rows if r.get("samples")]
     print(json.dumps({
         "line_only_starts": len(rows),
