@@ -3,8 +3,9 @@ relinearisation check how many variables move and the step of a few watched pose
 
 Maps a simulated drive (noisy observations) with the default configuration (changed by
 ``SEMSLAM_MAPPING__...`` variables) and prints the checks that moved more than ``--show``
-variables, then a summary per 500 keyframes (updates, total and median update time, median
-and largest number of variables iSAM2 re-eliminated). A step that changes sign from one
+variables, then a summary per 500 keyframes (updates, total and median update time, of it
+the time spent linearising the factors in Python, median and largest number of variables
+iSAM2 re-eliminated, median nonzeros of the Bayes tree). A step that changes sign from one
 check to the next at the same pose is Gauss-Newton swinging, not new information.
 
 ``--cliques-at K ...`` prints iSAM2's Bayes-tree statistics (``printStats``: average and
@@ -48,15 +49,28 @@ def main() -> None:
                     odometry.yaw_rate)
     graph = mapper.graph
     updates: list[tuple[int, float, int]] = []  # (keyframes, seconds, re-eliminated)
+    linearising: list[float] = []  # seconds of each update spent in Graph._linearized
+    nonzeros: list[int] = []  # of the Bayes tree after each update
     checks: list[dict] = []
     timed_update, predicted = graph.update, graph._relinearized_by_isam2
+    timed_linearized = graph._linearized
+    spent = [0.0]
+
+    def linearized(index: int):
+        start = time.perf_counter()
+        factor = timed_linearized(index)
+        spent[0] += time.perf_counter() - start
+        return factor
 
     def update() -> None:
+        spent[0] = 0.0
         start = time.perf_counter()
         timed_update()
         keyframes = len(mapper.keyframe_times)
         updates.append((keyframes, time.perf_counter() - start,
                         graph.last_result.getVariablesReeliminated()))
+        linearising.append(spent[0])
+        nonzeros.append(graph.isam.treeNnz())
         while cliques_at and keyframes >= cliques_at[0]:
             print(f"--- Bayes tree after the update at keyframe {keyframes}, "
                   f"{graph._theta.size()} variables", flush=True)
@@ -90,6 +104,7 @@ def main() -> None:
         return total, stuck, freed
 
     graph.update, graph._relinearized_by_isam2 = update, relinearised
+    graph._linearized = linearized
     start = time.perf_counter()
     for frame in drive.observations("noisy"):
         mapper.add_frame(frame)
@@ -109,14 +124,17 @@ def main() -> None:
     kf = np.array([k for k, _, _ in updates])
     dt = np.array([t for _, t, _ in updates])
     redone = np.array([n for _, _, n in updates])
-    print("| keyframes | updates | seconds | median ms | re-eliminated: median / largest |")
-    print("|---|---|---|---|---|")
+    lin, nnz = np.array(linearising), np.array(nonzeros)
+    print(f"of the updates' {dt.sum():.1f} s, {lin.sum():.1f} s linearising in Python")
+    print("| keyframes | updates | seconds | of it linearising s | median ms | "
+          "re-eliminated: median / largest | tree nonzeros, median |")
+    print("|---|---|---|---|---|---|---|")
     for lo in range(0, int(kf.max()) + 1, 500):
         sel = (kf >= lo) & (kf < lo + 500)
         if sel.any():
-            print(f"| {lo}-{lo + 499} | {sel.sum()} | {dt[sel].sum():.1f} | "
+            print(f"| {lo}-{lo + 499} | {sel.sum()} | {dt[sel].sum():.1f} | {lin[sel].sum():.1f} | "
                   f"{1e3 * np.median(dt[sel]):.0f} | {np.median(redone[sel]):.0f} / "
-                  f"{redone[sel].max()} |")
+                  f"{redone[sel].max()} | {np.median(nnz[sel]):.0f} |")
 
 
 if __name__ == "__main__":
