@@ -2,7 +2,8 @@
 
 The networks (``models/marking_points.onnx`` and ``models/marking_points_long.onnx``, two
 runs of ``tools/train_marking_points.py``, see ``models/marking_points.md``; by default the
-detector averages the grids of their 8-bit twins, :data:`DEFAULT_MODELS`) take the top
+detector averages the grids of their 8-bit twins on a CPU with VNNI, of the float pair
+elsewhere, :data:`DEFAULT_MODELS`) take the top
 view resized to a square ``(1, S, S, 3)`` uint8 BGR image and return a ``(1, 6, G, G)``
 grid: per cell the confidence that a marking point lies in it, the probability that it is
 an L junction, the point's x and y offset inside the cell (0-1) and the cosine and sine of
@@ -65,8 +66,31 @@ INT8_MODELS = ("marking_points.int8.onnx", "marking_points_long.int8.onnx")
 top view on this 2-core machine, the same points within a few of 2,135 labelled
 (``models/marking_points.md``)."""
 
-DEFAULT_MODELS = INT8_MODELS
-"""The models whose grids the detector averages by default."""
+
+
+def cpu_has_vnni(cpuinfo: str | None = None) -> bool:
+    """Whether this CPU has the 8-bit dot product (x86 VNNI) that the 8-bit twins were
+    quantized and checked on. Without it onnxruntime's 8-bit convolutions take another path
+    (AVX2 ``vpmaddubsw``, whose 16-bit sums saturate) and the grid moves: on an AVX2-only
+    AMD EPYC a confidence came out 0.17 away from the float pair's (BENCHMARKS.md).
+
+    Args:
+        cpuinfo: the text of ``/proc/cpuinfo`` (read when None; a machine without it, or
+            not x86, counts as without VNNI).
+    """
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text(errors="replace")
+        except OSError:
+            return False
+    flags = {word for line in cpuinfo.splitlines() if line.startswith("flags")
+             for word in line.split(":", 1)[-1].split()}
+    return bool(flags & {"avx512_vnni", "avx_vnni", "amx_int8"})
+
+
+DEFAULT_MODELS = INT8_MODELS if cpu_has_vnni() else FLOAT_MODELS
+"""The models whose grids the detector averages by default: the 8-bit twins on a CPU with
+VNNI (:func:`cpu_has_vnni`), the float pair elsewhere."""
 
 NMS_RADIUS_PX = 10.0
 """Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""
@@ -312,6 +336,7 @@ __all__ = [
     "MarkingPoint",
     "MarkingPointDetector",
     "check_topview",
+    "cpu_has_vnni",
     "decode_grid",
     "shrink",
     "suppress_close",
