@@ -2,7 +2,10 @@
 
 Each float grid model in ``semslam/models/`` (``tools/train_marking_points.py``'s output,
 :data:`~semslam.perception.marking_points.FLOAT_MODELS`) gets an 8-bit twin,
-``NAME.int8.onnx``, which the detector runs by default: weights int8 per output channel,
+``NAME.int8.onnx``, which the detector runs by default on a CPU with VNNI, and
+``NAME.int8avx2.onnx`` with 7-bit weights (``reduce_range``), its default on a CPU with
+AVX2 but no VNNI, where onnxruntime's 8-bit path would saturate with 8-bit weights. Both:
+weights int8 per output channel,
 activations uint8, the last convolution (the grid's heads) left in float. Activation
 ranges: the 99.9999th percentile of what each layer sees in simulated top views of
 training worlds 1000 .. 1000 + ``--worlds`` - 1 (never the benchmark's test worlds 0-99,
@@ -28,7 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from semslam.perception import onnx_model
-from semslam.perception.marking_points import FLOAT_MODELS, INT8_MODELS, shrink
+from semslam.perception.marking_points import (
+    FLOAT_MODELS,
+    INT8_AVX2_MODELS,
+    INT8_MODELS,
+    shrink,
+)
 from semslam.simulation.topview_samples import sample_topviews
 
 CALIBRATION_WORLDS = 1000
@@ -48,8 +56,9 @@ def calibration_views(worlds: int, per_world: int, size: int) -> list[np.ndarray
     ]
 
 
-def quantize(src: Path, dst: Path, batches: list[np.ndarray]) -> None:
-    """Static 8-bit quantization of ``src`` calibrated on ``batches``, written to ``dst``."""
+def quantize(src: Path, dst: Path, batches: list[np.ndarray], reduce_range: bool = False) -> None:
+    """Static 8-bit quantization of ``src`` calibrated on ``batches``, written to ``dst``;
+    ``reduce_range``: 7-bit weights, whose sums AVX2's ``vpmaddubsw`` cannot saturate."""
     import onnx
     from onnxruntime.quantization import (
         CalibrationDataReader,
@@ -84,6 +93,7 @@ def quantize(src: Path, dst: Path, batches: list[np.ndarray]) -> None:
             calibrate_method=CalibrationMethod.Percentile,
             nodes_to_exclude=weighted[-1:],
             extra_options={"CalibPercentile": PERCENTILE},
+            reduce_range=reduce_range,
         )
         os.chmod(tmp, 0o644)
         os.replace(tmp, dst)
@@ -99,12 +109,13 @@ def main() -> None:
     args = parser.parse_args()
     grid_input = onnx_model.load_session(onnx_model.model_path(FLOAT_MODELS[0])).get_inputs()[0]
     views = calibration_views(args.worlds, args.per_world, int(grid_input.shape[1]))
-    for name, twin in zip(FLOAT_MODELS, INT8_MODELS, strict=True):
-        src = onnx_model.model_path(name)
-        dst = src.with_name(twin)
-        quantize(src, dst, views)
-        print(f"{dst.name}: calibrated on {len(views)} views, "
-              f"{src.stat().st_size / 1e6:.2f} -> {dst.stat().st_size / 1e6:.2f} MB")
+    for twins, reduce_range in ((INT8_MODELS, False), (INT8_AVX2_MODELS, True)):
+        for name, twin in zip(FLOAT_MODELS, twins, strict=True):
+            src = onnx_model.model_path(name)
+            dst = src.with_name(twin)
+            quantize(src, dst, views, reduce_range)
+            print(f"{dst.name}: calibrated on {len(views)} views, "
+                  f"{src.stat().st_size / 1e6:.2f} -> {dst.stat().st_size / 1e6:.2f} MB")
 
 
 if __name__ == "__main__":

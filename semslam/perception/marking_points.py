@@ -2,8 +2,8 @@
 
 The networks (``models/marking_points.onnx`` and ``models/marking_points_long.onnx``, two
 runs of ``tools/train_marking_points.py``, see ``models/marking_points.md``; by default the
-detector averages the grids of their 8-bit twins on a CPU with VNNI, of the float pair
-elsewhere, :data:`DEFAULT_MODELS`) take the top
+detector averages the grids of their 8-bit twins, made for the CPU's 8-bit instructions,
+:data:`DEFAULT_MODELS`) take the top
 view resized to a square ``(1, S, S, 3)`` uint8 BGR image and return a ``(1, 6, G, G)``
 grid: per cell the confidence that a marking point lies in it, the probability that it is
 an L junction, the point's x and y offset inside the cell (0-1) and the cosine and sine of
@@ -68,29 +68,39 @@ top view on this 2-core machine, the same points within a few of 2,135 labelled
 
 
 
-def cpu_has_vnni(cpuinfo: str | None = None) -> bool:
-    """Whether this CPU has the 8-bit dot product (x86 VNNI) that the 8-bit twins were
-    quantized and checked on. Without it onnxruntime's 8-bit convolutions take another path
-    (AVX2 ``vpmaddubsw``, whose 16-bit sums saturate) and the grid moves: on an AVX2-only
-    AMD EPYC a confidence came out 0.17 away from the float pair's (BENCHMARKS.md).
+INT8_AVX2_MODELS = ("marking_points.int8avx2.onnx", "marking_points_long.int8avx2.onnx")
+""":data:`FLOAT_MODELS` quantized to 8 bits with 7-bit weights (onnxruntime's
+``reduce_range``, ``tools/quantize_models.py``), for x86 CPUs without VNNI: there
+onnxruntime's 8-bit convolutions run on AVX2's ``vpmaddubsw``, whose 16-bit sums saturate
+with 8-bit weights (:data:`INT8_MODELS` lose 0.06 of real precision and recall there) but
+not with 7-bit ones (``models/marking_points.md``)."""
 
-    Args:
-        cpuinfo: the text of ``/proc/cpuinfo`` (read when None; a machine without it, or
-            not x86, counts as without VNNI).
-    """
+
+def cpu_flags(cpuinfo: str | None = None) -> set[str]:
+    """The CPU's feature flags from ``/proc/cpuinfo`` (its text, read when None; empty on a
+    machine without it)."""
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text(errors="replace")
         except OSError:
-            return False
-    flags = {word for line in cpuinfo.splitlines() if line.startswith("flags")
-             for word in line.split(":", 1)[-1].split()}
-    return bool(flags & {"avx512_vnni", "avx_vnni", "amx_int8"})
+            return set()
+    return {word for line in cpuinfo.splitlines() if line.startswith("flags")
+            for word in line.split(":", 1)[-1].split()}
 
 
-DEFAULT_MODELS = INT8_MODELS if cpu_has_vnni() else FLOAT_MODELS
-"""The models whose grids the detector averages by default: the 8-bit twins on a CPU with
-VNNI (:func:`cpu_has_vnni`), the float pair elsewhere."""
+def default_models(flags: set[str]) -> tuple[str, str]:
+    """The grid pair for a CPU with these flags: the 8-bit twins where it has VNNI (the
+    8-bit dot product they were made and checked on), the 7-bit-weight twins where it has
+    AVX2 only, the float pair elsewhere."""
+    if flags & {"avx512_vnni", "avx_vnni", "amx_int8"}:
+        return INT8_MODELS
+    if "avx2" in flags:
+        return INT8_AVX2_MODELS
+    return FLOAT_MODELS
+
+
+DEFAULT_MODELS = default_models(cpu_flags())
+"""The models whose grids the detector averages by default (:func:`default_models`)."""
 
 NMS_RADIUS_PX = 10.0
 """Of two points closer than this (in the decoded image's pixels) the weaker is dropped."""
@@ -335,9 +345,11 @@ __all__ = [
     "NMS_RADIUS_PX",
     "MarkingPoint",
     "MarkingPointDetector",
+    "INT8_AVX2_MODELS",
     "check_topview",
-    "cpu_has_vnni",
+    "cpu_flags",
     "decode_grid",
+    "default_models",
     "shrink",
     "suppress_close",
     "verified_confidence",

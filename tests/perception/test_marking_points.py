@@ -12,10 +12,12 @@ from semslam.errors import PerceptionError
 from semslam.perception.marking_points import (
     DEFAULT_MODELS,
     FLOAT_MODELS,
+    INT8_AVX2_MODELS,
     INT8_MODELS,
     MarkingPointDetector,
-    cpu_has_vnni,
+    cpu_flags,
     decode_grid,
+    default_models,
 )
 from semslam.perception.onnx_model import model_path
 from semslam.perception.point_verifier import PointVerifier
@@ -111,28 +113,29 @@ def test_default_grid_is_the_mean_of_the_shipped_models(detector, views):
     assert np.array_equal(pair.grid(image)[0], pair.grid(image)[0])
 
 
-def test_the_default_pair_is_the_int8_twins_only_where_the_cpu_has_vnni():
-    expected = INT8_MODELS if cpu_has_vnni() else FLOAT_MODELS
-    assert expected == DEFAULT_MODELS
-    for f, q in zip(FLOAT_MODELS, INT8_MODELS, strict=True):
-        assert model_path(q).stat().st_size < 0.5 * model_path(f).stat().st_size
+def test_the_default_pair_suits_the_cpus_8_bit_instructions():
+    assert default_models(cpu_flags()) == DEFAULT_MODELS
+    assert default_models({"fpu", "avx2", "avx512f", "avx512_vnni"}) == INT8_MODELS
+    assert default_models({"avx2", "avx_vnni"}) == INT8_MODELS
+    assert default_models({"fpu", "sse2", "avx2", "fma"}) == INT8_AVX2_MODELS
+    assert default_models({"fpu", "sse2"}) == FLOAT_MODELS
+    assert default_models(set()) == FLOAT_MODELS
+    for twins in (INT8_MODELS, INT8_AVX2_MODELS):
+        for f, q in zip(FLOAT_MODELS, twins, strict=True):
+            assert model_path(q).stat().st_size < 0.5 * model_path(f).stat().st_size
 
 
-def test_vnni_is_read_from_the_cpu_flags():
-    assert cpu_has_vnni("processor\t: 0\nflags\t\t: fpu sse2 avx2 avx512f avx512_vnni\n")
-    assert cpu_has_vnni("flags\t: fpu avx2 avx_vnni\n")
-    assert not cpu_has_vnni("processor\t: 0\nflags\t\t: fpu sse2 avx2 fma\n")
-    assert not cpu_has_vnni("model name\t: avx512_vnni in the name only\n")
-    assert not cpu_has_vnni("")
+def test_cpu_flags_are_read_from_the_flags_lines():
+    text = "processor\t: 0\nmodel name\t: avx512_vnni in the name\nflags\t\t: fpu avx2 fma\n"
+    assert cpu_flags(text) == {"fpu", "avx2", "fma"}
+    assert cpu_flags("") == set()
 
 
-@pytest.mark.skipif(not cpu_has_vnni(), reason="the 8-bit twins were checked on VNNI CPUs; "
-                    "without VNNI onnxruntime's 8-bit path saturates and the float pair runs")
-def test_int8_twins_find_the_float_pairs_points(views):
-    """On a CPU with VNNI the default pair is the float pair in 8 bits
-    (tools/quantize_models.py): its grid near the float one, and the same points to within a
-    pixel or two."""
-    int8 = MarkingPointDetector([model_path(n) for n in INT8_MODELS])
+@pytest.mark.skipif(DEFAULT_MODELS == FLOAT_MODELS, reason="the float pair runs on this CPU")
+def test_the_default_8_bit_twins_find_the_float_pairs_points(views):
+    """Where an 8-bit pair is the default (tools/quantize_models.py), its grid is near the
+    float pair's and it finds the same points to within a pixel or two."""
+    int8 = MarkingPointDetector([model_path(n) for n in DEFAULT_MODELS])
     floats = MarkingPointDetector([model_path(n) for n in FLOAT_MODELS])
     kept = total = 0
     for s in views:
