@@ -66,8 +66,6 @@ INT8_MODELS = ("marking_points.int8.onnx", "marking_points_long.int8.onnx")
 top view on this 2-core machine, the same points within a few of 2,135 labelled
 (``models/marking_points.md``)."""
 
-
-
 INT8_AVX2_MODELS = ("marking_points.int8avx2.onnx", "marking_points_long.int8avx2.onnx")
 """:data:`FLOAT_MODELS` quantized to 8 bits with 7-bit weights (onnxruntime's
 ``reduce_range``, ``tools/quantize_models.py``), for x86 CPUs without VNNI: there
@@ -341,11 +339,11 @@ __all__ = [
     "DEFAULT_THRESHOLD",
     "FLOAT_MODELS",
     "GRID_THRESHOLD",
+    "INT8_AVX2_MODELS",
     "INT8_MODELS",
     "NMS_RADIUS_PX",
     "MarkingPoint",
     "MarkingPointDetector",
-    "INT8_AVX2_MODELS",
     "check_topview",
     "cpu_flags",
     "decode_grid",
