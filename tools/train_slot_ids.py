@@ -42,7 +42,7 @@ from semslam.perception.slot_ids import (
     PATCH_WIDTH,
     PX_PER_M,
     crop_id_patch,
-    reading_from_probs,
+    readings_from_probs,
 )
 from semslam.simulation.render_topview import TopviewRenderer
 from semslam.simulation.topview_samples import random_aisle_pose
@@ -211,9 +211,15 @@ def generate(name: str, cache: Path) -> dict:
 # ---------------------------------------------------------------- model
 
 
-def build_model():
+WIDTHS = (16, 32, 64, 96, 128, 128)
+"""Channels of the four 2D conv blocks and the two 1D convs (``--widths``)."""
+
+
+def build_model(widths: tuple[int, ...] = WIDTHS):
     import torch
     from torch import nn
+
+    c1, c2, c3, c4, s1, s2 = widths
 
     def block(i, o):
         return [nn.Conv2d(i, o, 3, padding=1, bias=False), nn.BatchNorm2d(o), nn.ReLU(inplace=True)]
@@ -222,22 +228,22 @@ def build_model():
         def __init__(self):
             super().__init__()
             self.cnn = nn.Sequential(
-                *block(1, 16),
+                *block(1, c1),
                 nn.MaxPool2d(2),  # 32 x 64
-                *block(16, 32),
+                *block(c1, c2),
                 nn.MaxPool2d(2),  # 16 x 32
-                *block(32, 64),
+                *block(c2, c3),
                 nn.MaxPool2d((2, 1)),  # 8 x 32
-                *block(64, 96),
+                *block(c3, c4),
             )
             self.seq = nn.Sequential(  # along the 32 columns (4 px each)
-                nn.Conv1d(96, 128, 5, padding=2, bias=False),
-                nn.BatchNorm1d(128),
+                nn.Conv1d(c4, s1, 5, padding=2, bias=False),
+                nn.BatchNorm1d(s1),
                 nn.ReLU(inplace=True),
-                nn.Conv1d(128, 128, 5, padding=2, bias=False),
-                nn.BatchNorm1d(128),
+                nn.Conv1d(s1, s2, 5, padding=2, bias=False),
+                nn.BatchNorm1d(s2),
                 nn.ReLU(inplace=True),
-                nn.Conv1d(128, len(ALPHABET) + 1, 1),
+                nn.Conv1d(s2, len(ALPHABET) + 1, 1),
             )
             self.register_buffer("inv_temperature", torch.ones(()))
 
@@ -246,7 +252,7 @@ def build_model():
             mean = x.mean(dim=(2, 3), keepdim=True)
             std = x.std(dim=(2, 3), keepdim=True)
             x = (x - mean) / (std + 8.0)
-            f = self.cnn(x).amax(dim=2)  # (N, 96, 32): the text may sit at any height
+            f = self.cnn(x).amax(dim=2)  # (N, c4, 32): the text may sit at any height
             return self.seq(f).permute(0, 2, 1)  # (N, T, C)
 
         def forward(self, x):
@@ -311,13 +317,14 @@ def train(
     warmup: float = 0.03,
     init: Path | None = None,
     threads: int = 1,
+    widths: tuple[int, ...] = WIDTHS,
 ):
     import torch
 
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    model = build_model()
+    model = build_model(widths)
     if init is not None:  # continue from a saved state dict (the optimiser starts afresh)
         model.load_state_dict(torch.load(init, map_location="cpu"))
         print(f"[train] initialised from {init}", flush=True)
@@ -380,7 +387,7 @@ def readings(logits: np.ndarray, temperature: float):
     z = z - z.max(axis=-1, keepdims=True)
     p = np.exp(z)
     p /= p.sum(axis=-1, keepdims=True)
-    return [reading_from_probs(q) for q in p]
+    return readings_from_probs(p)
 
 
 def scores(reads, data):
@@ -535,6 +542,12 @@ def main() -> None:
     )
     ap.add_argument("--sets", default="train,calib,test")
     ap.add_argument(
+        "--widths",
+        type=lambda text: tuple(int(w) for w in text.split(",")),
+        default=WIDTHS,
+        help="channels of the four 2D conv blocks and the two 1D convs, six integers",
+    )
+    ap.add_argument(
         "--calibration-target",
         type=float,
         default=0.998,
@@ -559,7 +572,7 @@ def main() -> None:
     if args.stage == "calibrate":  # no training: calibrate, test and export --init
         if args.init is None:
             raise SystemExit("--stage calibrate needs --init (trained weights)")
-        model = build_model()
+        model = build_model(args.widths)
         model.load_state_dict(torch.load(args.init, map_location="cpu"))
         model.eval()
         train_s, done, n_train = 0.0, 0, 0
@@ -577,6 +590,7 @@ def main() -> None:
             warmup=args.warmup,
             init=args.init,
             threads=args.threads,
+            widths=args.widths,
         )
         torch.save(model.state_dict(), args.checkpoint or args.cache / "slot_ids.pt")
     data["calib"] = generate("calib", args.cache)

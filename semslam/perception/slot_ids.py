@@ -153,17 +153,17 @@ def ctc_greedy(probs: np.ndarray, alphabet: str = ALPHABET) -> tuple[str, tuple[
         raise PerceptionError(
             f"ctc_greedy: expected (T, {len(alphabet) + 1}) probabilities, got {p.shape}"
         )
-    best = p.argmax(axis=1)
-    top = p.max(axis=1)
+    best = p.argmax(axis=1).tolist()
+    top = p.max(axis=1).tolist()
     chars: list[str] = []
     confs: list[float] = []
     prev = 0
     for k, c in enumerate(best):
         if c != 0 and c == prev:
-            confs[-1] = max(confs[-1], float(top[k]))
+            confs[-1] = max(confs[-1], top[k])
         elif c != 0:
             chars.append(alphabet[c - 1])
-            confs.append(float(top[k]))
+            confs.append(top[k])
         prev = c
     return "".join(chars), tuple(confs)
 
@@ -172,48 +172,102 @@ def ctc_label_probability(probs: np.ndarray, label: str, alphabet: str = ALPHABE
     """Probability of ``label`` under one (T, C) array of per-frame probabilities (class 0
     blank): the CTC forward sum over every alignment of T frames that collapses to it
     (Graves et al. 2006), frames independent given the image. The empty label is the
-    all-blank path."""
+    all-blank path. One case of :func:`ctc_label_probabilities`."""
     p = np.asarray(probs, dtype=float)
     if p.ndim != 2 or p.shape[1] != len(alphabet) + 1:
         raise PerceptionError(
             f"ctc_label_probability: expected (T, {len(alphabet) + 1}) probabilities, "
             f"got {p.shape}"
         )
-    unknown = set(label) - set(alphabet)
+    return float(ctc_label_probabilities(p[None], [label], alphabet)[0])
+
+
+def ctc_label_probabilities(
+    probs: np.ndarray, labels: list[str], alphabet: str = ALPHABET
+) -> np.ndarray:
+    """(N,) CTC probabilities of ``labels[k]`` under ``probs[k]``, (N, T, C) per-frame
+    probabilities: :func:`ctc_label_probability` for N patches at once, one pass of the
+    forward recursion over the frames for all of them (labels padded to the longest).
+
+    Raises:
+        PerceptionError: wrong shape, a label count other than N, or a character not
+            in ``alphabet``.
+    """
+    p = np.asarray(probs, dtype=float)
+    if p.ndim != 3 or p.shape[2] != len(alphabet) + 1:
+        raise PerceptionError(
+            f"ctc_label_probabilities: expected (N, T, {len(alphabet) + 1}) probabilities, "
+            f"got {p.shape}"
+        )
+    if len(labels) != len(p):
+        raise PerceptionError(
+            f"ctc_label_probabilities: {len(labels)} labels for {len(p)} probability arrays"
+        )
+    unknown = set("".join(labels)) - set(alphabet)
     if unknown:
         raise PerceptionError(f"ctc_label_probability: {sorted(unknown)} not in the alphabet")
-    if len(p) == 0:
-        return 1.0 if not label else 0.0
-    states = [0]  # blank, c1, blank, c2, ..., blank
-    for ch in label:
-        states += [alphabet.index(ch) + 1, 0]
-    # a state may be entered from itself, the one before, or (a character different from
-    # the one two back) skip the blank between them
-    n = len(states)
-    skips = [k for k in range(2, n) if states[k] != 0 and states[k] != states[k - 2]]
-    rows = p[:, states].tolist()  # (T, n) in Python floats: a few states, T small
-    alpha = [0.0] * n
-    alpha[0] = rows[0][0]
-    if n > 1:
-        alpha[1] = rows[0][1]
-    for row in rows[1:]:
-        entered = [alpha[0]] + [alpha[k] + alpha[k - 1] for k in range(1, n)]
-        for k in skips:
-            entered[k] += alpha[k - 2]
-        alpha = [e * q for e, q in zip(entered, row, strict=True)]
-    total = alpha[-1] + (alpha[-2] if n > 1 else 0.0)
-    return float(np.clip(total, 0.0, 1.0))
+    n_items, n_frames = p.shape[:2]
+    if n_items == 0:
+        return np.zeros(0)
+    if n_frames == 0:
+        return np.array([0.0 if label else 1.0 for label in labels])
+    # states per item: blank, c1, blank, c2, ..., blank, each item's after two guard
+    # states that emit nothing, all items in one row so a frame is four array operations
+    # on contiguous memory (a guard is entered from the item before, and emits nothing)
+    rows, skips, ends = [], [], []
+    for label in labels:
+        chars = [alphabet.index(ch) + 1 for ch in label]
+        item = [0] * (2 * len(chars) + 1)
+        item[1::2] = chars
+        rows += [-1, -1, *item]
+        skips += [False, False]
+        skips += [k >= 2 and item[k] != 0 and item[k] != item[k - 2] for k in range(len(item))]
+        ends.append(len(rows) - 1)
+    states = np.array(rows)
+    skip = np.array(skips, float)
+    # (T, states): each frame's emission probability of each state (guards 0)
+    emitted = p[np.repeat(np.arange(n_items), [2 * len(label) + 3 for label in labels]), :,
+                np.maximum(states, 0)].T * (states >= 0)
+    buf = np.zeros(len(states) + 2)
+    alpha, before, two_before = buf[2:], buf[1:-1], buf[:-2]
+    alpha[:] = emitted[0] * (_position_in_item(labels) < 2)
+    for t in range(1, n_frames):
+        entered = alpha + before
+        entered += skip * two_before
+        np.multiply(entered, emitted[t], out=alpha)
+    end = np.array(ends)
+    short = np.array([not label for label in labels])
+    total = alpha[end] + np.where(short, 0.0, alpha[end - 1])
+    return np.clip(total, 0.0, 1.0)
+
+
+def _position_in_item(labels: list[str]) -> np.ndarray:
+    """For the state row of :func:`ctc_label_probabilities`: each state's index within its
+    item's states, guards -2 and -1 (so ``< 2`` marks the states a path may start in)."""
+    return np.concatenate([np.arange(-2, 2 * len(label) + 1) for label in labels])
 
 
 def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdReading:
     """A :class:`SlotIdReading` from one (T, C) probability array: greedy decoding, the
     confidence the label's CTC probability (:func:`ctc_label_probability`); nothing
     decoded -> None with the probability that there is nothing (the all-blank path)."""
-    label, confs = ctc_greedy(probs, alphabet)
-    conf = ctc_label_probability(probs, label, alphabet)
+    return readings_from_probs(np.asarray(probs)[None], alphabet)[0]
+
+
+def readings_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> list[SlotIdReading]:
+    """:func:`reading_from_probs` of each of (N, T, C) probability arrays, the CTC
+    probabilities in one pass (:func:`ctc_label_probabilities`)."""
+    p = np.asarray(probs, dtype=float)
+    greedy = [ctc_greedy(q, alphabet) for q in p]
+    confs = ctc_label_probabilities(p, [label for label, _ in greedy], alphabet)
+    return [_reading(label, float(conf), chars)
+            for (label, chars), conf in zip(greedy, confs, strict=True)]
+
+
+def _reading(label: str, confidence: float, chars: tuple[float, ...]) -> SlotIdReading:
     if not label:
-        return SlotIdReading(None, conf, ())
-    return SlotIdReading(label, conf, tuple(float(np.clip(c, 0.0, 1.0)) for c in confs))
+        return SlotIdReading(None, confidence, ())
+    return SlotIdReading(label, confidence, tuple(min(max(float(c), 0.0), 1.0) for c in chars))
 
 
 def shift_columns(patch: np.ndarray, dx: int) -> np.ndarray:
@@ -239,15 +293,17 @@ def reading_from_shifted_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> S
     if p.ndim != 3 or len(p) < 1:
         raise PerceptionError(f"reading_from_shifted_probs: expected (S, T, C), got {p.shape}")
     greedy = [ctc_greedy(q, alphabet) for q in p]
-    best, best_conf = "", -1.0
-    for label in dict.fromkeys(g[0] for g in greedy):
-        conf = float(np.mean([ctc_label_probability(q, label, alphabet) for q in p]))
-        if conf > best_conf:
-            best, best_conf = label, conf
+    candidates = list(dict.fromkeys(g[0] for g in greedy))
+    # every candidate under every shift, one batch: (candidates, S) probabilities
+    conf = ctc_label_probabilities(
+        np.concatenate([p] * len(candidates)), [c for c in candidates for _ in p], alphabet
+    ).reshape(len(candidates), len(p)).mean(axis=1)
+    k = int(np.argmax(conf))  # the first of equals, as a strict > over candidates in order
+    best, best_conf = candidates[k], float(conf[k])
     if not best:
         return SlotIdReading(None, best_conf, ())
     chars = next(c for g, c in greedy if g == best)
-    return SlotIdReading(best, best_conf, tuple(float(np.clip(c, 0.0, 1.0)) for c in chars))
+    return _reading(best, best_conf, chars)
 
 
 class SlotIdReader:
@@ -339,7 +395,7 @@ class SlotIdReader:
             return []
         first = self.probabilities([shift_columns(p, self.shifts[0]) if p.ndim == 2 else p
                                     for p in arr])
-        out = [reading_from_probs(q) for q in first]
+        out = readings_from_probs(first)
         unsure = [k for k, r in enumerate(out) if r.confidence < self.reread_below]
         others = self.shifts[1:]
         if unsure and others:
@@ -361,8 +417,10 @@ __all__ = [
     "SlotIdReading",
     "crop_id_patch",
     "ctc_greedy",
+    "ctc_label_probabilities",
     "ctc_label_probability",
     "reading_from_probs",
     "reading_from_shifted_probs",
+    "readings_from_probs",
     "shift_columns",
 ]

@@ -20,9 +20,11 @@ from semslam.perception.slot_ids import (
     SlotIdReading,
     crop_id_patch,
     ctc_greedy,
+    ctc_label_probabilities,
     ctc_label_probability,
     reading_from_probs,
     reading_from_shifted_probs,
+    readings_from_probs,
     shift_columns,
 )
 
@@ -227,6 +229,26 @@ def test_ctc_label_probability_is_the_sum_over_alignments(label):
     assert ours == pytest.approx(brute, rel=1e-9, abs=1e-15)
     with pytest.raises(PerceptionError):
         ctc_label_probability(p, "Z", alphabet)
+
+
+def test_batched_label_probabilities_are_each_patch_alone():
+    # labels of every length side by side (padded in one row) give what each gives alone,
+    # to the bit; the batched readings are the single readings
+    alphabet = "17AB"
+    rng = np.random.default_rng(5)
+    labels = ["", "B17", "7", "11", "", "A1B7", "A"]
+    p = rng.dirichlet(np.ones(len(alphabet) + 1) * 0.3, size=(len(labels), 9))
+    together = ctc_label_probabilities(p, labels, alphabet)
+    alone = [ctc_label_probability(q, label, alphabet) for q, label in zip(p, labels, strict=True)]
+    assert together.tolist() == alone
+    assert readings_from_probs(p, alphabet) == [reading_from_probs(q, alphabet) for q in p]
+    assert ctc_label_probabilities(p[:0], [], alphabet).shape == (0,)
+    one_frame = ctc_label_probabilities(p[:2, :1], ["", "B"], alphabet)
+    assert one_frame.tolist() == [p[0, 0, 0], p[1, 0, 4]]
+    with pytest.raises(PerceptionError, match="2 labels for 3"):
+        ctc_label_probabilities(p[:3], ["", "7"], alphabet)
+    with pytest.raises(PerceptionError):
+        ctc_label_probabilities(p[0], [""], alphabet)
 
 
 def test_confidence_counts_a_letter_the_greedy_path_dropped():
