@@ -101,10 +101,6 @@ def _candidate(
     if dist_px < 1e-6:
         return None
     width = dist_px * spec.metres_per_px
-    # every kind has a width range: a pair outside all of them is no slot (most pairs)
-    ranges = (rules.perpendicular_width, rules.parallel_width, rules.slanted_width)
-    if not any(lo <= width <= hi for lo, hi in ranges):
-        return None
     e = (pb - pa) / dist_px
     sa, sb = _unit(points[a].direction), _unit(points[b].direction)
     tol = math.radians(rules.angle_tolerance_deg)
