@@ -215,6 +215,17 @@ WIDTHS = (16, 32, 64, 96, 128, 128)
 """Channels of the four 2D conv blocks and the two 1D convs (``--widths``)."""
 
 
+def parse_widths(text: str) -> tuple[int, ...]:
+    """``--widths``: six positive integers, comma-separated."""
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        widths = ()
+    if len(widths) != 6 or min(widths) < 1:
+        raise argparse.ArgumentTypeError(f"expected six positive integers, got {text!r}")
+    return widths
+
+
 def build_model(widths: tuple[int, ...] = WIDTHS):
     import torch
     from torch import nn
@@ -543,7 +554,7 @@ def main() -> None:
     ap.add_argument("--sets", default="train,calib,test")
     ap.add_argument(
         "--widths",
-        type=lambda text: tuple(int(w) for w in text.split(",")),
+        type=parse_widths,
         default=WIDTHS,
         help="channels of the four 2D conv blocks and the two 1D convs, six integers",
     )

@@ -205,46 +205,42 @@ def ctc_label_probabilities(
         )
     unknown = set("".join(labels)) - set(alphabet)
     if unknown:
-        raise PerceptionError(f"ctc_label_probability: {sorted(unknown)} not in the alphabet")
+        raise PerceptionError(f"ctc_label_probabilities: {sorted(unknown)} not in the alphabet")
     n_items, n_frames = p.shape[:2]
     if n_items == 0:
         return np.zeros(0)
     if n_frames == 0:
         return np.array([0.0 if label else 1.0 for label in labels])
-    # states per item: blank, c1, blank, c2, ..., blank, each item's after two guard
-    # states that emit nothing, all items in one row so a frame is four array operations
-    # on contiguous memory (a guard is entered from the item before, and emits nothing)
-    rows, skips, ends = [], [], []
-    for label in labels:
-        chars = [alphabet.index(ch) + 1 for ch in label]
-        item = [0] * (2 * len(chars) + 1)
-        item[1::2] = chars
-        rows += [-1, -1, *item]
-        skips += [False, False]
-        skips += [k >= 2 and item[k] != 0 and item[k] != item[k - 2] for k in range(len(item))]
-        ends.append(len(rows) - 1)
-    states = np.array(rows)
+    # states per item: blank, c1, blank, c2, ..., blank, after two guard states that emit
+    # nothing; all items in one row, so a frame is four array operations on contiguous
+    # memory (a guard is entered from the item before it and passes nothing on)
+    classes, owner, emits, starts, skips, ends = [], [], [], [], [], []
+    for k, label in enumerate(labels):
+        item = [0] * (2 * len(label) + 1)
+        item[1::2] = [alphabet.index(ch) + 1 for ch in label]
+        classes += [0, 0, *item]
+        owner += [k] * (len(item) + 2)
+        emits += [False, False, *[True] * len(item)]
+        starts += [False, False, *(j < 2 for j in range(len(item)))]
+        # a state may be entered from itself, the one before, or (a character different
+        # from the one two back) skip the blank between them
+        skips += [False, False, *(j >= 2 and c != 0 and c != item[j - 2]
+                                  for j, c in enumerate(item))]
+        ends.append(len(classes) - 1)
+    # (T, states): each frame's emission probability of each state, 0 at the guards
+    emitted = p[np.array(owner), :, np.array(classes)].T * np.array(emits)
     skip = np.array(skips, float)
-    # (T, states): each frame's emission probability of each state (guards 0)
-    emitted = p[np.repeat(np.arange(n_items), [2 * len(label) + 3 for label in labels]), :,
-                np.maximum(states, 0)].T * (states >= 0)
-    buf = np.zeros(len(states) + 2)
+    buf = np.zeros(len(classes) + 2)
     alpha, before, two_before = buf[2:], buf[1:-1], buf[:-2]
-    alpha[:] = emitted[0] * (_position_in_item(labels) < 2)
+    alpha[:] = emitted[0] * np.array(starts)
     for t in range(1, n_frames):
         entered = alpha + before
         entered += skip * two_before
         np.multiply(entered, emitted[t], out=alpha)
     end = np.array(ends)
-    short = np.array([not label for label in labels])
-    total = alpha[end] + np.where(short, 0.0, alpha[end - 1])
+    empty = np.array([not label for label in labels])
+    total = alpha[end] + np.where(empty, 0.0, alpha[end - 1])
     return np.clip(total, 0.0, 1.0)
-
-
-def _position_in_item(labels: list[str]) -> np.ndarray:
-    """For the state row of :func:`ctc_label_probabilities`: each state's index within its
-    item's states, guards -2 and -1 (so ``< 2`` marks the states a path may start in)."""
-    return np.concatenate([np.arange(-2, 2 * len(label) + 1) for label in labels])
 
 
 def reading_from_probs(probs: np.ndarray, alphabet: str = ALPHABET) -> SlotIdReading:
