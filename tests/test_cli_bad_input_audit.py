@@ -246,6 +246,23 @@ def test_map_and_localize_refuse_odometry_cut_short(small_drive, tmp_path):
     assert not (tmp_path / "m2.json").exists() and not (tmp_path / "t.tum").exists()
 
 
+def test_localize_refuses_a_broken_drive_json_it_would_not_otherwise_read(small_drive, tmp_path):
+    drive = shutil.copytree(small_drive, tmp_path / "d")  # a copy to break
+    (drive / "drive.json").write_text("{")
+    result = _run("localize", drive, "--map", drive / "world.json", "-o", tmp_path / "t.tum",
+                  "--init", "auto", "--no-progress")
+    _fails(result, "drive.json", "not valid JSON")
+    assert not (tmp_path / "t.tum").exists()
+
+
+def test_evaluate_trajectory_refuses_times_that_never_meet_the_truth(small_drive, tmp_path):
+    estimate = tmp_path / "late.tum"
+    write_tum(estimate, np.array([500.0, 501.0]), np.zeros((2, 3)))
+    line = _fails(_run("evaluate", "trajectory", estimate, "--truth",
+                       small_drive / "groundtruth.tum"), "late.tum", "no pose lies within")
+    assert "500.000-501.000 s" in line and "0.000-91.900 s" in line
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["map"], "semslam map: error: Missing argument 'drive'."),

@@ -94,6 +94,8 @@ class Drive:
         Raises:
             DriveError: the folder does not exist or lacks drive.json, rig.json,
                 odometry.csv or frames.csv (the message names the missing file).
+            DriveFormatError: drive.json is broken (read here, so that every command
+                refuses such a folder, whichever parts it goes on to read).
         """
         path = Path(folder)
         if not path.is_dir():
@@ -101,7 +103,9 @@ class Drive:
         missing = [name for name in REQUIRED_FILES if not (path / name).is_file()]
         if missing:
             raise DriveError(f"{os.fspath(path)}: not a drive folder, missing {', '.join(missing)}")
-        return cls(path)
+        drive = cls(path)
+        drive.info  # noqa: B018 (read now: a broken drive.json is refused at once)
+        return drive
 
     def __repr__(self) -> str:
         return f"Drive({os.fspath(self.folder)!r})"

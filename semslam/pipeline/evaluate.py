@@ -85,8 +85,9 @@ def evaluate_trajectory_files(
         dict: plain JSON values, None for metrics without samples.
 
     Raises:
-        FormatError: a file is missing or broken, or the track CSV does not
-            have the trajectory's frames (one line naming the file and line).
+        FormatError: a file is missing or broken, the track CSV does not have the
+            trajectory's frames (one line naming the file and line), or no estimate
+            time meets the truth's (both time spans named).
         MapError: the map file is missing or not a valid map.
     """
     from semslam.errors import FormatError
@@ -121,6 +122,12 @@ def evaluate_trajectory_files(
         markings=segments,
         align=align,
     )
+    if len(t) and metrics["frames_unmatched"] == len(t):  # the wrong truth file, most likely
+        raise FormatError(
+            f"{os.fspath(trajectory)}: no pose lies within {metrics['max_time_gap_s']:g} s of "
+            f"a true one (estimate {t[0]:.3f}-{t[-1]:.3f} s, {os.fspath(truth)} "
+            f"{truth_t[0]:.3f}-{truth_t[-1]:.3f} s)"
+        )
     return {
         "trajectory": os.fspath(trajectory),
         "truth": os.fspath(truth),
