@@ -565,11 +565,14 @@ class TopviewRenderer:
         return pts @ P[:2, :2].T + P[:2, 2]
 
     def _near(self, items: np.ndarray, mTv: np.ndarray, radius: float) -> np.ndarray:
-        """Indices of (K, m, 2) world polygons whose vertices come within ``radius``."""
+        """Indices of (K, m, 2) world polygons whose bounding boxes come within ``radius``
+        (metres, per axis) of the vehicle. The box, not the vertices: a line painted along
+        a whole row has its vertices at the row's ends, far from a car beside its middle."""
         if len(items) == 0:
             return np.zeros(0, int)
-        d = np.abs(items - mTv[:2]).max(axis=2).min(axis=1)
-        return np.nonzero(d < radius)[0]
+        p = mTv[:2]
+        gap = np.maximum(np.maximum(items.min(axis=1) - p, p - items.max(axis=1)), 0.0)
+        return np.nonzero(gap.max(axis=1) < radius)[0]
 
     def _draw_markings(self, S: np.ndarray, P: np.ndarray, mTv: np.ndarray) -> None:
         idx = self._near(self._mark_quads, mTv, 30.0)

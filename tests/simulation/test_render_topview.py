@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from semslam.geometry import compose, inverse_transform_points
 from semslam.rig import TopviewSpec
 from semslam.simulation.render_topview import TopviewRenderer, render_topview
 from semslam.simulation.world import make_world
-from semslam.types import SlotKind
+from semslam.types import Marking, SlotKind
 
 SPEC = TopviewSpec()
 
@@ -155,3 +156,17 @@ def test_source_spacing_grows_away_from_the_cameras(renderer):
     assert g[1] > 2 * g[0] and g[3] > 2 * g[2] and g[4] > g[5]
     assert np.isnan(g[6]) and np.isnan(g[7])
     assert g[0] < 0.05  # a few centimetres beside the car, the paint is sharp
+
+
+def test_a_line_longer_than_the_view_is_drawn_where_the_car_is_beside_its_middle(small):
+    # a 100 m line 1.5 m left of the car, both ends 50 m away: it crosses the whole view
+    bare = replace(small, markings=(), marking_points=(), slots=(), slot_paint=(),
+                   parked_cars=(), pillars=())
+    mTv = np.array([20.0, small.aisles[0].a[1], 0.0])
+    line = Marking(mTv[:2] + [-50.0, 1.5], mTv[:2] + [50.0, 1.5], 0.15)
+    with_line, _ = TopviewRenderer(replace(bare, markings=(line,)), SPEC).render(mTv, seed=0)
+    without, _ = TopviewRenderer(bare, SPEC).render(mTv, seed=0)
+    along = SPEC.vehicle_to_pixel(np.column_stack([np.linspace(-4.5, 4.5, 10), np.full(10, 1.5)]))
+    u, v = np.round(along).astype(int).T
+    brighter = with_line[v, u].astype(float).mean(axis=1) - without[v, u].astype(float).mean(axis=1)
+    assert (brighter > 30).all(), brighter
