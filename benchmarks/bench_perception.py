@@ -1,7 +1,7 @@
 """Slot perception (issue 5): held-out simulated top views, real ps2.0 images, speed.
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
-        [--json out.json] [--points-model OTHER.onnx] [--no-verify]
+        [--json out.json] [--points-model OTHER.onnx] [--no-verify] [--no-entrance-check]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -263,13 +263,16 @@ def main() -> None:
                         "shipped pair)")
     parser.add_argument("--no-verify", action="store_true",
                         help="the marking-point grid alone, without the verifier's second look")
+    parser.add_argument("--no-entrance-check", action="store_true",
+                        help="keep the points with no entrance line across their separator")
     parser.add_argument("--verifier", type=Path, default=None,
                         help="another verifier ONNX file (default: the shipped one)")
     parser.add_argument("--id-model", type=Path, default=None,
                         help="another slot-ID ONNX file (default: the shipped one)")
     args = parser.parse_args()
     slots = SlotDetector(args.points_model, verify=not args.no_verify,
-                         verifier_path=args.verifier)
+                         verifier_path=args.verifier,
+                         check_entrance=not args.no_entrance_check)
     perception = TopviewPerception(lines=False, slot_detector=slots,
                                    id_reader=SlotIdReader(args.id_model))
     sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),

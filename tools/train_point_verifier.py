@@ -79,7 +79,8 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
         return path
     # the float pair the verifier was trained behind (the 8-bit twins came later)
     detector = MarkingPointDetector(
-        [model_path(f) for f in FLOAT_MODELS], threshold=CANDIDATE_THRESHOLD, verify=False
+        [model_path(f) for f in FLOAT_MODELS], threshold=CANDIDATE_THRESHOLD, verify=False,
+        check_entrance=False,  # every candidate the grid offers, as at run time
     )
     rng = np.random.default_rng(seed + 17)
     cols: dict[str, list] = {k: [] for k in

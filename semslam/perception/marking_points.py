@@ -15,7 +15,9 @@ look from the verifier CNN (:mod:`semslam.perception.point_verifier`), on a shar
 turned to the point's direction: it moves the candidate onto its point, turns it to the
 point's direction and rescores it. A point's confidence is then the geometric mean of the
 grid's and the verifier's, kept at :data:`DEFAULT_THRESHOLD` (``verify=False``: the grid
-alone at :data:`GRID_THRESHOLD`).
+alone at :data:`GRID_THRESHOLD`). Last, a classical check drops the points with no
+entrance line across their separator (:mod:`semslam.perception.entrance_paint`): the ends
+of bare lines, which the CNNs take for junctions.
 
 Non-square images (for example real garage top views of 600 rows x 480 columns) are
 padded with black to a centred square before the resize, so the pixel scale stays the
@@ -36,6 +38,7 @@ from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
 from semslam.perception import onnx_model
 from semslam.perception.beside import run_beside
+from semslam.perception.entrance_paint import bare_line_ends
 from semslam.perception.point_verifier import PointVerifier
 from semslam.types import JunctionShape
 
@@ -207,6 +210,8 @@ class MarkingPointDetector:
             the verifier, :data:`GRID_THRESHOLD` without.
         verify: give each candidate the verifier's second look.
         verifier_path: the verifier's ONNX file; default the shipped one.
+        check_entrance: drop the points with no entrance line across their separator
+            (:func:`semslam.perception.entrance_paint.bare_line_ends`).
 
     Raises:
         PerceptionError: a model is missing or not loadable, or its input is not
@@ -219,7 +224,9 @@ class MarkingPointDetector:
         threshold: float | None = None,
         verify: bool = True,
         verifier_path: str | os.PathLike[str] | None = None,
+        check_entrance: bool = True,
     ) -> None:
+        self.check_entrance = check_entrance
         if model_path is None:
             paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
         elif isinstance(model_path, (list, tuple)):
@@ -292,6 +299,16 @@ class MarkingPointDetector:
 
     def detect(self, topview_bgr: np.ndarray) -> list[MarkingPoint]:
         """Marking points in ``topview_bgr`` (uint8 BGR, H x W x 3), in its pixels."""
+        points = self._detect(topview_bgr)
+        if not self.check_entrance or not points:
+            return points
+        bare = bare_line_ends(
+            topview_bgr, np.array([p.uv for p in points]), np.array([p.direction for p in points])
+        )
+        return [p for p, b in zip(points, bare, strict=True) if not b]
+
+    def _detect(self, topview_bgr: np.ndarray) -> list[MarkingPoint]:
+        """The CNNs' points, before the entrance check."""
         g, side, (top, left) = self.grid(topview_bgr)
         first = self.threshold if self.verifier is None else CANDIDATE_THRESHOLD
         h, w = topview_bgr.shape[:2]

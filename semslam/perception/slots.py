@@ -302,9 +302,9 @@ class SlotDetector:
 
     The slots' pixel geometry assumes the top view's scale ``spec.metres_per_px``
     (ps2.0: 1/60 m per px); non-square images are handled by the point detector.
-    ``model_path``, ``threshold``, ``verify`` and ``verifier_path`` go to
-    :class:`MarkingPointDetector` (``verify=False``: the grid's points without the
-    verifier's second look).
+    ``model_path``, ``threshold``, ``verify``, ``verifier_path`` and ``check_entrance`` go
+    to :class:`MarkingPointDetector` (``verify=False``: the grid's points without the
+    verifier's second look; ``check_entrance=False``: bare line ends kept).
     """
 
     def __init__(
@@ -315,8 +315,11 @@ class SlotDetector:
         rules: SlotRules | None = None,
         verify: bool = True,
         verifier_path: str | os.PathLike[str] | None = None,
+        check_entrance: bool = True,
     ) -> None:
-        self.points = MarkingPointDetector(model_path, threshold, verify, verifier_path)
+        self.points = MarkingPointDetector(
+            model_path, threshold, verify, verifier_path, check_entrance
+        )
         self.spec = spec or TopviewSpec()
         self.rules = rules or SlotRules()
 

@@ -177,6 +177,15 @@ def test_contract_on_rendered_view(detector, views):
         assert isinstance(p.shape, JunctionShape)
 
 
+def test_the_entrance_check_only_drops_points(detector, views):
+    unchecked = MarkingPointDetector(check_entrance=False)
+    for s in views:
+        img = s.image
+        kept = detector.detect(img)
+        everything = unchecked.detect(img)
+        assert {tuple(p.uv) for p in kept} <= {tuple(p.uv) for p in everything}
+
+
 def test_non_square_image_padded(detector, views):
     img = views[0].image[:, 60:540]  # 600 rows x 480 columns
     full = detector.detect(views[0].image)
