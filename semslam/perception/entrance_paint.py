@@ -11,11 +11,11 @@ The check, per point: the paint level is halfway between the ground (the median 
 90 px square around the point, every third pixel) and the separator (the median grey along
 it, 8-34 px out); along each ray at 40-140 deg either side of the separator, 10-34 px out,
 every 2 px, the share of samples (each the mean of a 3 x 3 px neighbourhood) at or above
-that level is measured; the point's entrance score is the largest
-share. A point is undecided (score NaN, kept) when its separator is no brighter than the
-ground by :data:`MIN_CONTRAST` grey levels, or when more than half of a ray or of the
-separator is not seen (outside the image, or on its black: the ego box, padding): the
-entrance may lie there.
+that level is measured; the point's entrance score is the largest share. A point is
+undecided (score NaN, kept) when its separator is no brighter than the ground by
+:data:`MIN_CONTRAST` grey levels, or when more than half of a ray or of the separator is
+not seen (outside the image, or on its black: the ego box, padding): the entrance may lie
+there.
 
 Pixels are the top view's (u right, v down), at ps2.0's scale (600 px for 10 m; other
 sizes scale the distances); directions in radians, ``atan2(dv, du)`` of the separator.
@@ -23,9 +23,6 @@ About 1.2 ms for the five or six points of a simulated view (one core, this mach
 """
 
 from __future__ import annotations
-
-import functools
-import math
 
 import numpy as np
 
@@ -53,16 +50,13 @@ def _median(values: np.ndarray) -> float:
     return float(np.partition(values, m)[m])
 
 
-@functools.lru_cache(maxsize=8)
 def _ray_offsets(scale: float) -> tuple[np.ndarray, np.ndarray, int]:
     """Sample offsets (along, across) the separator, pixels: the separator's ray, then every
     entrance ray; and how many belong to the separator."""
-    along = [_SEPARATOR_PX * scale]
-    across = [np.zeros(len(_SEPARATOR_PX))]
-    for a in _ANGLES:
-        along.append(_ENTRANCE_PX * scale * math.cos(a))
-        across.append(_ENTRANCE_PX * scale * math.sin(a))
-    return np.concatenate(along), np.concatenate(across), len(_SEPARATOR_PX)
+    along = np.concatenate([_SEPARATOR_PX, np.outer(np.cos(_ANGLES), _ENTRANCE_PX).ravel()])
+    across = np.concatenate([np.zeros(len(_SEPARATOR_PX)),
+                             np.outer(np.sin(_ANGLES), _ENTRANCE_PX).ravel()])
+    return along * scale, across * scale, len(_SEPARATOR_PX)
 
 
 def entrance_scores(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArray) -> FloatArray:
@@ -112,8 +106,7 @@ def entrance_scores(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArr
                 level[i] = ground + 0.5 * (paint - ground)
     painted = (ent_grey >= level[:, None, None]) & ent_in
     share = painted.sum(axis=2) / np.maximum(ent_in.sum(axis=2), 1)
-    scores = np.where(np.isnan(level), np.nan, share.max(axis=1))
-    return scores
+    return np.where(np.isnan(level), np.nan, share.max(axis=1))
 
 
 def bare_line_ends(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArray) -> np.ndarray:
