@@ -56,6 +56,17 @@ three times gains (0.865 -> 0.881 of readable IDs) while the labels given >= 0.9
 same; on the held-out crops 0.821 -> 0.827 of readable IDs and 104 -> 107 of the 108 a
 person reads, re-reading 29 % of the crops (``models/slot_ids.md``)."""
 
+MAX_BLACK_SHARE = 0.4
+"""Share of a patch's pixels at grey <= :data:`BLACK` above which it is not read: that much
+of it lies off the view (or on the ego box), and no ID there is read whole. Of the patches
+of held-out simulated views over this share (239 of 1,355 in test worlds 0-99, 265 of 1,504
+in validation worlds 100-149), none gave a label; over 0.3, 15 did, 2 of them right
+(BENCHMARKS.md). Along a drive, where slots beside the car run off the view, such patches
+are about half of all, and many of their readings were unsure and read again."""
+
+BLACK = 8
+"""Grey at or below which a patch pixel is the view's black (outside it, the ego box)."""
+
 
 @dataclass(frozen=True)
 class SlotIdReading:
@@ -266,6 +277,16 @@ def _reading(label: str, confidence: float, chars: tuple[float, ...]) -> SlotIdR
     return SlotIdReading(label, confidence, tuple(min(max(float(c), 0.0), 1.0) for c in chars))
 
 
+def _mostly_black(patch: np.ndarray) -> bool:
+    """Whether more than :data:`MAX_BLACK_SHARE` of a uint8 patch is at or below
+    :data:`BLACK` (anything else is left for :meth:`SlotIdReader.probabilities` to check)."""
+    return (
+        patch.dtype == np.uint8
+        and patch.shape == (PATCH_HEIGHT, PATCH_WIDTH)
+        and np.count_nonzero(patch <= BLACK) > MAX_BLACK_SHARE * patch.size
+    )
+
+
 def shift_columns(patch: np.ndarray, dx: int) -> np.ndarray:
     """``patch`` moved ``dx`` columns to the right (left when negative); the columns it
     uncovers are black, as outside the top view. ``dx == 0`` returns ``patch`` itself."""
@@ -385,8 +406,17 @@ class SlotIdReader:
     def read_patches(self, patches) -> list[SlotIdReading]:
         """Readings of (N, 64, 128) uint8 patches from :func:`crop_id_patch`: each read at
         the first of ``shifts``, those read with confidence below ``reread_below`` again
-        at the others, combined (:func:`reading_from_shifted_probs`); one batch per pass."""
-        arr = [np.asarray(p) for p in patches]
+        at the others, combined (:func:`reading_from_shifted_probs`); one batch per pass.
+        A patch more than :data:`MAX_BLACK_SHARE` black is not read: ``(None, 0.0, ())``."""
+        every = [np.asarray(p) for p in patches]
+        seen = [k for k, p in enumerate(every) if not _mostly_black(p)]
+        readings = [SlotIdReading(None, 0.0, ())] * len(every)
+        for k, reading in zip(seen, self._read([every[k] for k in seen]), strict=True):
+            readings[k] = reading
+        return readings
+
+    def _read(self, arr: list[np.ndarray]) -> list[SlotIdReading]:
+        """:meth:`read_patches` of patches that are not mostly black."""
         if not arr:
             return []
         first = self.probabilities([shift_columns(p, self.shifts[0]) if p.ndim == 2 else p
@@ -405,6 +435,8 @@ class SlotIdReader:
 
 __all__ = [
     "ALPHABET",
+    "BLACK",
+    "MAX_BLACK_SHARE",
     "PATCH_HEIGHT",
     "PATCH_WIDTH",
     "REREAD_BELOW",

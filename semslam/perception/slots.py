@@ -71,55 +71,58 @@ class DetectedSlot:
     confidence: float
 
 
-def _unit(a: float) -> np.ndarray:
-    return np.array([math.cos(a), math.sin(a)])
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> float:
-    return float(a[0] * b[1] - a[1] * b[0])
-
-
-def _third_point(uv: np.ndarray, a: int, b: int, limit_px: float) -> bool:
+def _third_point(uv: list[tuple[float, float]], a: int, b: int, limit_px: float) -> bool:
     """Whether a point other than a, b lies near the open segment a-b."""
-    pa, pb = uv[a], uv[b]
-    e = pb - pa
-    length2 = float(e @ e)
-    for k in range(len(uv)):
+    (ax, ay), (bx, by) = uv[a], uv[b]
+    ex, ey = bx - ax, by - ay
+    length2 = ex * ex + ey * ey
+    length = math.sqrt(length2)
+    for k, (x, y) in enumerate(uv):
         if k in (a, b):
             continue
-        t = float((uv[k] - pa) @ e) / length2
-        if 0.0 < t < 1.0 and abs(_cross(e, uv[k] - pa)) / math.sqrt(length2) < limit_px:
+        t = ((x - ax) * ex + (y - ay) * ey) / length2
+        if 0.0 < t < 1.0 and abs(ex * (y - ay) - ey * (x - ax)) / length < limit_px:
             return True
     return False
 
 
 def _candidate(
-    points: list[MarkingPoint], uv: np.ndarray, a: int, b: int, spec: TopviewSpec, rules: SlotRules
+    points: list[MarkingPoint],
+    uv: list[tuple[float, float]],
+    a: int,
+    b: int,
+    spec: TopviewSpec,
+    rules: SlotRules,
 ) -> DetectedSlot | None:
-    pa, pb = uv[a], uv[b]
-    dist_px = float(np.hypot(*(pb - pa)))
+    """The slot whose entrance runs from point ``a`` to point ``b``, if they make one.
+
+    Plain floats, not 2-vectors: this runs for every pair of a view's points."""
+    (ax, ay), (bx, by) = uv[a], uv[b]
+    dist_px = math.hypot(bx - ax, by - ay)
     if dist_px < 1e-6:
         return None
     width = dist_px * spec.metres_per_px
-    e = (pb - pa) / dist_px
-    sa, sb = _unit(points[a].direction), _unit(points[b].direction)
+    ex, ey = (bx - ax) / dist_px, (by - ay) / dist_px
+    sax, say = math.cos(points[a].direction), math.sin(points[a].direction)
+    sbx, sby = math.cos(points[b].direction), math.sin(points[b].direction)
     tol = math.radians(rules.angle_tolerance_deg)
     along = math.cos(tol)
     # an L pointing along the entrance at its partner takes the partner's separator
-    a_along = points[a].shape is JunctionShape.L and float(sa @ e) > along
-    b_along = points[b].shape is JunctionShape.L and float(-sb @ e) > along
+    a_along = points[a].shape is JunctionShape.L and sax * ex + say * ey > along
+    b_along = points[b].shape is JunctionShape.L and -(sbx * ex + sby * ey) > along
     if a_along and b_along:
         return None
     if a_along:
-        sa = sb
+        sax, say = sbx, sby
     if b_along:
-        sb = sa
+        sbx, sby = sax, say
     # both separators on the same side of the entrance line
-    side_a, side_b = _cross(e, sa), _cross(e, sb)
+    side_a, side_b = ex * say - ey * sax, ex * sby - ey * sbx
     if side_a * side_b <= 0.0:
         return None
     kind: SlotKind | None = None
-    perp_err = max(abs(float(sa @ e)), abs(float(sb @ e)))  # cos of angle to e, 0 = perpendicular
+    cos_a, cos_b = sax * ex + say * ey, sbx * ex + sby * ey  # of the angles to the entrance
+    perp_err = max(abs(cos_a), abs(cos_b))  # 0 = perpendicular
     if perp_err < math.sin(tol):
         fit_err = math.degrees(math.asin(min(perp_err, 1.0)))
         if rules.perpendicular_width[0] <= width <= rules.perpendicular_width[1]:
@@ -127,9 +130,9 @@ def _candidate(
         elif rules.parallel_width[0] <= width <= rules.parallel_width[1]:
             kind = SlotKind.PARALLEL
     else:
-        between = math.degrees(math.acos(float(np.clip(sa @ sb, -1.0, 1.0))))
-        ang_a = math.degrees(math.acos(min(abs(float(sa @ e)), 1.0)))
-        ang_b = math.degrees(math.acos(min(abs(float(sb @ e)), 1.0)))
+        between = math.degrees(math.acos(min(max(sax * sbx + say * sby, -1.0), 1.0)))
+        ang_a = math.degrees(math.acos(min(abs(cos_a), 1.0)))
+        ang_b = math.degrees(math.acos(min(abs(cos_b), 1.0)))
         lo, hi = rules.slanted_angle_deg
         if (
             between < rules.angle_tolerance_deg
@@ -143,27 +146,28 @@ def _candidate(
         return None
     if _third_point(uv, a, b, rules.third_point_distance_m / spec.metres_per_px):
         return None
-    sep = sa + sb
+    sep = np.array([sax + sbx, say + sby])
     sep /= np.linalg.norm(sep)
     # into the slot; left of a viewer facing it, in image coordinates (v down)
-    normal = np.array([-e[1], e[0]]) if _cross(e, sep) > 0 else np.array([e[1], -e[0]])
+    normal = np.array([-ey, ex]) if ex * sep[1] - ey * sep[0] > 0 else np.array([ey, -ex])
     left = np.array([normal[1], -normal[0]])
-    el, er = (a, b) if float((pa - pb) @ left) > 0 else (b, a)
+    el, er = (a, b) if (ax - bx) * left[0] + (ay - by) * left[1] > 0 else (b, a)
     if kind is SlotKind.SLANTED:
         depth_vec = sep * rules.slanted_separator / spec.metres_per_px
     elif kind is SlotKind.PARALLEL:
         depth_vec = normal * rules.parallel_depth / spec.metres_per_px
     else:
         depth_vec = normal * rules.perpendicular_depth / spec.metres_per_px
-    corners = np.array([uv[el], uv[er], uv[er] + depth_vec, uv[el] + depth_vec])
-    entrance = (uv[er] - uv[el]) / dist_px
+    pl, pr = np.array(uv[el]), np.array(uv[er])
+    corners = np.array([pl, pr, pr + depth_vec, pl + depth_vec])
     if kind is SlotKind.SLANTED:
+        entrance = (pr - pl) / dist_px
         angle = math.degrees(math.acos(float(np.clip(entrance @ sep, -1.0, 1.0))))
     else:
         angle = 90.0
     fit = math.exp(-0.5 * (fit_err / rules.angle_tolerance_deg * 2.0) ** 2)
     conf = math.sqrt(points[a].confidence * points[b].confidence) * fit
-    return DetectedSlot(el, er, corners, kind, angle, float(np.clip(conf, 0.0, 1.0)))
+    return DetectedSlot(el, er, corners, kind, angle, min(max(conf, 0.0), 1.0))
 
 
 def infer_slots(
@@ -185,12 +189,18 @@ def infer_slots(
     if len(points) < 2:
         return []
     uv = np.array([np.asarray(p.uv, float) for p in points]).reshape(-1, 2)
+    # only pairs as far apart as some kind of slot is wide can be one's entrance (a
+    # nanometre's slack: _candidate measures the width again, in its own rounding)
+    width = np.hypot(*(uv[None] - uv[:, None]).transpose(2, 0, 1)) * spec.metres_per_px
+    wide_enough = np.zeros(width.shape, bool)
+    for lo, hi in (rules.perpendicular_width, rules.parallel_width, rules.slanted_width):
+        wide_enough |= (width >= lo - 1e-9) & (width <= hi + 1e-9)
+    pixels = [(float(u), float(v)) for u, v in uv]
     cands = []
-    for a in range(len(points)):
-        for b in range(a + 1, len(points)):
-            c = _candidate(points, uv, a, b, spec, rules)
-            if c is not None and c.confidence >= min_confidence:
-                cands.append(c)
+    for a, b in zip(*np.nonzero(np.triu(wide_enough, 1)), strict=True):
+        c = _candidate(points, pixels, int(a), int(b), spec, rules)
+        if c is not None and c.confidence >= min_confidence:
+            cands.append(c)
     cands.sort(key=lambda s: -s.confidence)
     kept: list[DetectedSlot] = []
     for c in cands:
@@ -199,7 +209,8 @@ def infer_slots(
             for p, q in ((c.i, c.j), (c.j, c.i)):
                 for r, t in ((k.i, k.j), (k.j, k.i)):
                     # sharing a point and leaving it to the same side along the entrance
-                    if p == r and float((uv[q] - uv[p]) @ (uv[t] - uv[r])) > 0.0:
+                    (px, py), (qx, qy), (tx, ty) = pixels[p], pixels[q], pixels[t]
+                    if p == r and (qx - px) * (tx - px) + (qy - py) * (ty - py) > 0.0:
                         clash = True
         if not clash:
             kept.append(c)

@@ -184,6 +184,16 @@ def test_verifier_moves_candidates_onto_their_points(verifier, candidates):
     assert hits_moved >= hits_grid
 
 
+def test_verify_crops_and_scores_in_halves_as_one_by_one(verifier, candidates):
+    """verify() crops and scores its two halves on two cores: each point as alone."""
+    image, uv, d = next((im, u, dd) for im, u, dd, *_ in candidates if len(u) >= 3)
+    whole = verifier.verify(image, uv, d)
+    alone = [verifier.verify(image, uv[k : k + 1], d[k : k + 1]) for k in range(len(uv))]
+    for part, each in zip(whole, zip(*alone, strict=True), strict=True):
+        np.testing.assert_allclose(part, np.concatenate(each), atol=1e-5)
+        assert len(part) == len(uv)
+
+
 def test_no_candidate_left_out_could_be_kept():
     """A cell under the candidate threshold could not reach the kept confidence even with
     the verifier's full vote, so the threshold only saves work."""

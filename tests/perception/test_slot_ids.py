@@ -12,6 +12,8 @@ from semslam.errors import PerceptionError
 from semslam.perception.onnx_model import model_path
 from semslam.perception.slot_ids import (
     ALPHABET,
+    BLACK,
+    MAX_BLACK_SHARE,
     PATCH_HEIGHT,
     PATCH_WIDTH,
     REREAD_BELOW,
@@ -297,3 +299,24 @@ def test_shifted_reading_takes_the_label_most_probable_over_the_shifts():
     assert none.label is None and none.confidence > 0.5
     with pytest.raises(PerceptionError):
         reading_from_shifted_probs(np.zeros((4, 3)), "AB")
+
+
+@needs_model
+def test_mostly_black_patches_are_not_read(monkeypatch):
+    reader = SlotIdReader(min_confidence=0.0)
+    batches = []
+    probabilities = reader.probabilities
+    monkeypatch.setattr(reader, "probabilities", lambda p: batches.append(len(p)) or
+                        probabilities(p))
+    floor = np.full((PATCH_HEIGHT, PATCH_WIDTH), 90, np.uint8)
+    off_view = floor.copy()
+    off_view[:, : int(0.45 * PATCH_WIDTH)] = 0  # 45 % off the view
+    at_limit = floor.ravel().copy()
+    at_limit[: int(MAX_BLACK_SHARE * at_limit.size)] = BLACK  # just the limit: still read
+    reads = reader.read_patches([off_view, at_limit.reshape(floor.shape), off_view])
+    assert reads[0] == reads[2] == SlotIdReading(None, 0.0, ())
+    assert reads[1].confidence > 0.0
+    assert batches[0] == 1  # only the patch at the limit went to the CNN
+    batches.clear()
+    assert reader.read_patches([off_view]) == [SlotIdReading(None, 0.0, ())]
+    assert batches == []
