@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 
 from semslam.errors import PerceptionError
-from semslam.perception.beside import run_beside
 from semslam.perception.markings import MarkingDetector
 from semslam.perception.slot_ids import SlotIdReader, SlotIdReading, crop_id_patch
 from semslam.perception.slots import DetectedSlot, SlotDetector, slot_observation
@@ -111,14 +110,9 @@ class TopviewPerception:
         ids: tuple[SlotIdReading, ...] = ()
         if slots:
             grey = cv2.cvtColor(topview, cv2.COLOR_BGR2GRAY)  # once, not per slot
-
-            def crop(some: tuple[DetectedSlot, ...]) -> list[np.ndarray]:
-                return [crop_id_patch(grey, s.uv_corners[:2], into_slot_direction(s)) for s in some]
-
-            # the second half of the crops on the other core (each crop is alone)
-            half = (len(slots) + 1) // 2
-            second = run_beside(crop, tuple(slots[half:]))
-            patches = crop(tuple(slots[:half])) + second.result()
+            patches = [
+                crop_id_patch(grey, s.uv_corners[:2], into_slot_direction(s)) for s in slots
+            ]
             ids = tuple(self.id_reader.read_patches(patches))
         t2 = time.perf_counter()
         markings: tuple[MarkingObservation, ...] = ()
