@@ -136,11 +136,16 @@ def run_bench(
     import os
     import platform
 
+    from semslam.perception.marking_points import DEFAULT_MODELS
+
     log("perception stages ...")
     result: dict[str, Any] = {
         "machine": (
             f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
         ),
+        # the grid pair this CPU runs (8-bit with VNNI, 7-bit weights with AVX2 alone, else
+        # float): the marking points' time depends on it
+        "grid_models": " + ".join(DEFAULT_MODELS),
         **perception_timings(config, frames),
     }
     log("mapping and localization ...")
