@@ -60,7 +60,7 @@ MAX_BLACK_SHARE = 0.4
 """Share of a patch's pixels at grey <= :data:`BLACK` above which it is not read: that much
 of it lies off the view (or on the ego box), and no ID there is read whole. Of the patches
 of held-out simulated views over this share (239 of 1,355 in test worlds 0-99, 265 of 1,504
-in validation worlds 100-149), none gave a label; over 0.3, 15 did, 2 of them right
+in validation worlds 100-149), none gave a label; over 0.3, 15 did, 1 of them right
 (BENCHMARKS.md). Along a drive, where slots beside the car run off the view, such patches
 are about half of all, and many of their readings were unsure and read again."""
 
