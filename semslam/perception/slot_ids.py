@@ -60,9 +60,10 @@ MAX_BLACK_SHARE = 0.4
 """Share of a patch's pixels at grey <= :data:`BLACK` above which it is not read: that much
 of it lies off the view (or on the ego box), and no ID there is read whole. Of the patches
 of held-out simulated views over this share (239 of 1,355 in test worlds 0-99, 265 of 1,504
-in validation worlds 100-149), none gave a label; over 0.3, 15 did, 1 of them right
-(BENCHMARKS.md). Along a drive, where slots beside the car run off the view, such patches
-are about half of all, and many of their readings were unsure and read again."""
+in validation worlds 100-149), none gave a label; over 0.3, 15 did, two of them on IDs the
+benchmark can check, one right (BENCHMARKS.md). Along a drive, where slots beside the car
+run off the view, such patches are about half of all, and many of their readings were
+unsure and read again."""
 
 BLACK = 8
 """Grey at or below which a patch pixel is the view's black (outside it, the ego box)."""
