@@ -168,9 +168,9 @@ class PointVerifier:
             def crop_and_score(rows: slice) -> np.ndarray:
                 return self._run(crop_point_patches(topview_bgr, uv[rows], directions[rows]))
 
-            half = slice((len(uv) + 1) // 2, None)
-            second = run_beside(crop_and_score, half)
-            v = np.concatenate([crop_and_score(slice(0, half.start)), second.result()])
+            mid = (len(uv) + 1) // 2
+            second = run_beside(crop_and_score, slice(mid, None))
+            v = np.concatenate([crop_and_score(slice(0, mid)), second.result()])
         moved, turned = refined(uv, directions, v)
         return v[:, 0], moved, turned
 
