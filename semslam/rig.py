@@ -55,6 +55,12 @@ class Camera:
         return uv, z
 
 
+TOPVIEW_BLACK = 8
+"""Grey at or below which a top-view pixel is the view's black, where nothing is seen: the
+ego box, ground no camera covers, padding outside the image (0, with room for compression
+and for interpolation at its edge)."""
+
+
 @dataclass(frozen=True)
 class TopviewSpec:
     """The bird's-eye image grid (ps2.0 convention).

@@ -27,15 +27,13 @@ from __future__ import annotations
 import numpy as np
 
 from semslam.geometry import FloatArray
+from semslam.rig import TOPVIEW_BLACK
 
 MIN_ENTRANCE_SHARE = 0.25
 """A point whose best entrance ray holds less paint than this share is a bare line end."""
 
 MIN_CONTRAST = 12.0
 """Grey levels the separator must stand above the ground for the check to decide."""
-
-BLACK = 8.0
-"""Grey at or below which a pixel is the view's black (the ego box, padding): not seen."""
 
 _SEPARATOR_PX = np.arange(8.0, 36.0, 2.0)
 _ENTRANCE_PX = np.arange(10.0, 36.0, 2.0)
@@ -86,7 +84,7 @@ def entrance_scores(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArr
     nv = np.concatenate([sv + dv for dv in (-1.0, -1.0, 1.0, 1.0)], axis=1).astype(np.float32)
     bgr = cv2.remap(topview_bgr, nu, nv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     grey = (bgr.astype(np.float32) @ _GREY_WEIGHTS).reshape(n, 4, -1).mean(axis=1)
-    seen = (su >= 0) & (su <= w - 1) & (sv >= 0) & (sv <= h - 1) & (grey > BLACK)
+    seen = (su >= 0) & (su <= w - 1) & (sv >= 0) & (sv <= h - 1) & (grey > TOPVIEW_BLACK)
     shape = (n, len(_ANGLES), len(_ENTRANCE_PX))
     sep_grey, ent_grey = grey[:, :k], grey[:, k:].reshape(shape)
     sep_in, ent_in = seen[:, :k], seen[:, k:].reshape(shape)
@@ -99,7 +97,7 @@ def entrance_scores(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArr
         window = topview_bgr[max(0, row - half) : row + half + 1 : 3,
                              max(0, col - half) : col + half + 1 : 3]
         floor = window.reshape(-1, 3).astype(np.float32) @ _GREY_WEIGHTS
-        floor = floor[floor > BLACK]
+        floor = floor[floor > TOPVIEW_BLACK]
         if floor.size:
             ground, paint = _median(floor), _median(sep_grey[i][sep_in[i]])
             if paint - ground >= MIN_CONTRAST:
@@ -115,5 +113,5 @@ def bare_line_ends(topview_bgr: np.ndarray, uv: FloatArray, direction: FloatArra
     return np.nan_to_num(scores, nan=1.0) < MIN_ENTRANCE_SHARE
 
 
-__all__ = ["BLACK", "MIN_CONTRAST", "MIN_ENTRANCE_SHARE", "bare_line_ends", "entrance_scores"]
+__all__ = ["MIN_CONTRAST", "MIN_ENTRANCE_SHARE", "bare_line_ends", "entrance_scores"]
 

@@ -36,6 +36,7 @@ import numpy as np
 from semslam.errors import PerceptionError
 from semslam.perception import onnx_model
 from semslam.perception.beside import run_beside
+from semslam.rig import TOPVIEW_BLACK
 
 ALPHABET = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ"  # class k + 1; class 0 is the CTC blank
 PATCH_HEIGHT = 64
@@ -57,16 +58,13 @@ same; on the held-out crops 0.821 -> 0.827 of readable IDs and 104 -> 107 of the
 person reads, re-reading 29 % of the crops (``models/slot_ids.md``)."""
 
 MAX_BLACK_SHARE = 0.4
-"""Share of a patch's pixels at grey <= :data:`BLACK` above which it is not read: that much
-of it lies off the view (or on the ego box), and no ID there is read whole. Of the patches
-of held-out simulated views over this share (239 of 1,355 in test worlds 0-99, 265 of 1,504
-in validation worlds 100-149), none gave a label; over 0.3, 15 did, two of them on IDs the
-benchmark can check, one right (BENCHMARKS.md). Along a drive, where slots beside the car
-run off the view, such patches are about half of all, and many of their readings were
-unsure and read again."""
-
-BLACK = 8
-"""Grey at or below which a patch pixel is the view's black (outside it, the ego box)."""
+"""Share of a patch's pixels at grey <= :data:`~semslam.rig.TOPVIEW_BLACK` above which it is
+not read: that much of it lies off the view (or on the ego box), and no ID there is read
+whole. Of the patches of held-out simulated views over this share (239 of 1,355 in test
+worlds 0-99, 265 of 1,504 in validation worlds 100-149), none gave a label; over 0.3, 15
+did, two of them on IDs the benchmark can check, one right (BENCHMARKS.md). Along a drive,
+where slots beside the car run off the view, such patches are about half of all, and many
+of their readings were unsure and read again."""
 
 
 @dataclass(frozen=True)
@@ -279,12 +277,13 @@ def _reading(label: str, confidence: float, chars: tuple[float, ...]) -> SlotIdR
 
 
 def _mostly_black(patch: np.ndarray) -> bool:
-    """Whether more than :data:`MAX_BLACK_SHARE` of a uint8 patch is at or below
-    :data:`BLACK` (anything else is left for :meth:`SlotIdReader.probabilities` to check)."""
+    """Whether more than :data:`MAX_BLACK_SHARE` of a uint8 patch is the view's black
+    (:data:`~semslam.rig.TOPVIEW_BLACK`); any other input is left for
+    :meth:`SlotIdReader.probabilities` to check."""
     return (
         patch.dtype == np.uint8
         and patch.shape == (PATCH_HEIGHT, PATCH_WIDTH)
-        and np.count_nonzero(patch <= BLACK) > MAX_BLACK_SHARE * patch.size
+        and np.count_nonzero(patch <= TOPVIEW_BLACK) > MAX_BLACK_SHARE * patch.size
     )
 
 
@@ -436,7 +435,6 @@ class SlotIdReader:
 
 __all__ = [
     "ALPHABET",
-    "BLACK",
     "MAX_BLACK_SHARE",
     "PATCH_HEIGHT",
     "PATCH_WIDTH",

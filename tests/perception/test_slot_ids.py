@@ -12,7 +12,6 @@ from semslam.errors import PerceptionError
 from semslam.perception.onnx_model import model_path
 from semslam.perception.slot_ids import (
     ALPHABET,
-    BLACK,
     MAX_BLACK_SHARE,
     PATCH_HEIGHT,
     PATCH_WIDTH,
@@ -29,6 +28,7 @@ from semslam.perception.slot_ids import (
     readings_from_probs,
     shift_columns,
 )
+from semslam.rig import TOPVIEW_BLACK
 
 MODEL = model_path("slot_ids.onnx")
 needs_model = pytest.mark.skipif(not MODEL.is_file(), reason="models/slot_ids.onnx not trained")
@@ -312,7 +312,7 @@ def test_mostly_black_patches_are_not_read(monkeypatch):
     off_view = floor.copy()
     off_view[:, : int(0.45 * PATCH_WIDTH)] = 0  # 45 % off the view
     at_limit = floor.ravel().copy()
-    at_limit[: int(MAX_BLACK_SHARE * at_limit.size)] = BLACK  # just the limit: still read
+    at_limit[: int(MAX_BLACK_SHARE * at_limit.size)] = TOPVIEW_BLACK  # just the limit: still read
     reads = reader.read_patches([off_view, at_limit.reshape(floor.shape), off_view])
     assert reads[0] == reads[2] == SlotIdReading(None, 0.0, ())
     assert reads[1].confidence > 0.0
