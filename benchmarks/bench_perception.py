@@ -2,6 +2,7 @@
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
         [--json out.json] [--points-model OTHER.onnx] [--no-verify] [--no-entrance-check]
+        [--cross-share 1.0]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -45,7 +46,7 @@ from semslam.perception.slot_ids import SlotIdReader
 from semslam.perception.slots import SlotDetector
 from semslam.perception.topview_perception import TopviewPerception, into_slot_direction
 from semslam.pipeline.detect import evaluate_detection_folder
-from semslam.simulation.topview_samples import sample_topviews
+from semslam.simulation.topview_samples import PaintVariation, sample_topviews
 
 PS20 = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "ps2.0-samples"
 PS20_LABELS_ZIP = PS20.parent / "ps2.0-labels" / "ps_json_label.zip"
@@ -119,14 +120,17 @@ def _arrays(det):
     return pts, dirs, shapes, conf
 
 
-def simulated(perception: TopviewPerception, worlds: range, per_world: int) -> dict:
+def simulated(perception: TopviewPerception, worlds: range, per_world: int,
+              cross_share: float = 0.0) -> dict:
     total = DetectionCounts()
     dmpr = DetectionCounts()  # DMPR-PS's protocol (module docstring)
     labelled_area = DetectionCounts()  # ps2.0's labelled area (module docstring)
     ids_right = ids_total = ids_read = 0
     confident = confident_right = 0
     t_slots, t_ids, t_both = [], [], []
-    for sample in sample_topviews(worlds, per_world, seed=20261122):
+    paint = (PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share)
+             if cross_share > 0 else None)  # the same poses either way
+    for sample in sample_topviews(worlds, per_world, seed=20261122, paint=paint):
         a = sample.annotation
         t0 = time.perf_counter()
         det = perception.detect(sample.image)
@@ -267,6 +271,9 @@ def main() -> None:
                         help="keep the points with no entrance line across their separator")
     parser.add_argument("--verifier", type=Path, default=None,
                         help="another verifier ONNX file (default: the shipped one)")
+    parser.add_argument("--cross-share", type=float, default=0.0,
+                        help="share of the simulated worlds whose separators are painted "
+                        "across the entrance line (PaintVariation.cross_share; default none)")
     parser.add_argument("--id-model", type=Path, default=None,
                         help="another slot-ID ONNX file (default: the shipped one)")
     args = parser.parse_args()
@@ -276,7 +283,7 @@ def main() -> None:
     perception = TopviewPerception(lines=False, slot_detector=slots,
                                    id_reader=SlotIdReader(args.id_model))
     sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),
-                    args.per_world)
+                    args.per_world, args.cross_share)
     border = ps20_label_border_distances()
     sim["ps20_labelled_area"]["ps20_labels"] = len(border)
     sim["ps20_labelled_area"]["ps20_labels_min_border_px"] = round(float(border.min()), 1)

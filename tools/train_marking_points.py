@@ -18,6 +18,13 @@ Example::
     PYTHONPATH=. python tools/train_marking_points.py --train-worlds 1000:2000 \
         --per-world 8 --epochs 30 --out models/marking_points.onnx
 
+Fine-tuning a shipped file (``--init-onnx``, its batch norms frozen: ``onnx_weights.py``)
+on worlds some of whose separators cross the entrance line (``--cross-share``)::
+
+    PYTHONPATH=. python tools/train_marking_points.py --train-worlds 3000:4000 \
+        --per-world 8 --epochs 10 --lr 5e-4 --max-minutes 25 --cross-share 0.5 \
+        --init-onnx models/marking_points.onnx --out /tmp/marking_points.onnx
+
 torch is needed here only; the package runs the exported model with onnxruntime.
 """
 
@@ -35,7 +42,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from train_point_verifier import half_plane, pavement, seam  # tools/: the script's own dir
+from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: the script's own dir
+from train_point_verifier import half_plane, pavement, seam
 
 INPUT = 256  # network input side, px
 GRID = 16  # output cells per side
@@ -51,14 +59,27 @@ def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
     return (np.asarray(points, float) + 0.5) * k - 0.5
 
 
-def _render_shard(args: tuple[list[int], int, int, str, bool]) -> str:
-    from semslam.simulation.topview_samples import PaintVariation, sample_topviews
+def paint_variation(vary_paint: bool, cross_share: float):
+    """The training worlds' :class:`PaintVariation`: ``--vary-paint`` thin lines and stub
+    separators, ``--cross-share`` separators painted across the entrance line; None: as
+    the simulator paints them."""
+    from semslam.simulation.topview_samples import PaintVariation
 
-    seeds, per_world, seed, path, vary = args
+    if vary_paint:
+        return PaintVariation(cross_share=cross_share)
+    if cross_share > 0:
+        return PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share)
+    return None
+
+
+def _render_shard(args: tuple[list[int], int, int, str, bool, float]) -> str:
+    from semslam.simulation.topview_samples import sample_topviews
+
+    seeds, per_world, seed, path, vary, cross = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
-    for s in sample_topviews(seeds, per_world, seed, paint=PaintVariation() if vary else None):
+    for s in sample_topviews(seeds, per_world, seed, paint=paint_variation(vary, cross)):
         a = s.annotation
         images.append(cv2.resize(s.image, (INPUT, INPUT), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
@@ -83,18 +104,20 @@ def _render_shard(args: tuple[list[int], int, int, str, bool]) -> str:
 def render_dataset(
     seeds: list[int], per_world: int, seed: int, cache: Path, workers: int,
     vary_paint: bool = False,
+    cross_share: float = 0.0,
 ) -> dict[str, np.ndarray]:
-    """Rendered, resized training views and their labels (600 px coordinates); with
-    ``vary_paint`` the worlds' lines thinned and separators cut to stubs at random
-    (:class:`~semslam.simulation.topview_samples.PaintVariation`)."""
+    """Rendered, resized training views and their labels (600 px coordinates); the worlds'
+    paint varied by :func:`paint_variation`."""
     cache.mkdir(parents=True, exist_ok=True)
-    spec = [seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
+    spec = ([seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
+            + ([f"cross{cross_share:g}"] if cross_share > 0 else []))
     key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
-        jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint))
+        jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
+                     cross_share))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -120,7 +143,7 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
         lo, hi = (int(v) for v in span.split(":"))
         seed = args.data_seed + 1000 * k
         parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
-                                    args.workers, args.vary_paint))
+                                    args.workers, args.vary_paint, args.cross_share))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -433,6 +456,8 @@ def train(args: argparse.Namespace) -> None:
     net = build_model()
     if args.init is not None:  # continue from saved weights (a second, shorter run)
         net.load_state_dict(torch.load(args.init))
+    if args.init_onnx is not None:  # fine-tune a shipped file: its batch norms stay frozen
+        load_folded_onnx(net, args.init_onnx)
     fast = not args.fp32 and native_bf16()
     print(f"steps in {'bf16' if fast else 'float32'}", flush=True)
     if fast:
@@ -463,6 +488,8 @@ def train(args: argparse.Namespace) -> None:
         for group in opt.param_groups:
             group["lr"] = args.lr * warm * 0.5 * (1.0 + math.cos(math.pi * progress))
         net.train()
+        if args.init_onnx is not None:
+            freeze_batch_norms(net)
         x = _to_tensor(xs)
         if fast:
             x = x.contiguous(memory_format=torch.channels_last)
@@ -473,7 +500,7 @@ def train(args: argparse.Namespace) -> None:
         loss.backward()
         opt.step()
         step += 1
-        loss_sum += float(loss)
+        loss_sum += float(loss.detach())
         if step % 50 == 0:
             print(f"  step {step} loss {loss_sum / 50:.4f} {time.time() - t0:.0f} s", flush=True)
             loss_sum = 0.0
@@ -638,6 +665,10 @@ def main(argv: list[str] | None = None) -> int:
         default=Path(__file__).resolve().parents[2] / "shared/realdata/ps2.0-samples",
     )
     p.add_argument("--init", type=Path, default=None, help="start from these torch weights")
+    p.add_argument("--init-onnx", type=Path, default=None,
+                   help="fine-tune this exported (float) file; its batch norms stay frozen")
+    p.add_argument("--cross-share", type=float, default=0.0,
+                   help="share of training worlds whose separators cross the entrance line")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
     p.add_argument("--fp32", action="store_true",

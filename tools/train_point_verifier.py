@@ -35,6 +35,9 @@ Example (the shipped file; ``models/point_verifier.md``)::
     PYTHONPATH=. python tools/train_point_verifier.py --stage evaluate \
         --out semslam/models/point_verifier.onnx
 
+``--init-onnx`` fine-tunes an exported file (its batch norms frozen: ``onnx_weights.py``);
+the set ``cross`` holds worlds whose T junctions' separators cross the entrance line.
+
 torch is needed here only; the package runs the exported model with onnxruntime.
 """
 
@@ -51,6 +54,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: the script's own dir
 
 CANDIDATE_THRESHOLD = 0.2  # the grid's confidence above which a cell is a candidate
 SETS = {  # name: (world seeds, views per world, sampling seed, jittered copies)
@@ -58,7 +62,11 @@ SETS = {  # name: (world seeds, views per world, sampling seed, jittered copies)
     "train2": (range(2800, 4000), 6, 6001, True),
     "val": (range(100, 150), 5, 777, False),
     "test": (range(0, 100), 5, 20261122, False),  # bench_perception.py's views
+    # every T junction's separator painted across the entrance line ("+", "X"), as in many
+    # of the real ps2.0 garages (PaintVariation.cross_share); not in the shipped file's sets
+    "cross": (range(4000, 4400), 6, 8001, True),
 }
+CROSSED = {"cross"}  # the sets whose worlds are painted so
 REFINE_PX = 20.0  # a labelled point this near a candidate is the one it should move to
 CHUNK = 20  # worlds per training shard; an evaluation set is one shard, so that its views
 # are the same as a single ``sample_topviews`` call's (the test set: bench_perception.py's)
@@ -72,9 +80,11 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
     from semslam.perception.marking_points import FLOAT_MODELS, MarkingPointDetector
     from semslam.perception.onnx_model import model_path
     from semslam.perception.point_verifier import crop_point_patches
-    from semslam.simulation.topview_samples import sample_topviews
+    from semslam.simulation.topview_samples import PaintVariation, sample_topviews
 
     name, seeds, per_world, seed, jitter, path = job
+    paint = (PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=1.0)
+             if name in CROSSED else None)
     if os.path.exists(path):
         return path
     # the float pair the verifier was trained behind (the 8-bit twins came later)
@@ -87,7 +97,7 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
                              ("patches", "y", "y_near", "target", "conf", "view", "uv",
                               "dir", "copy")}
     lab: dict[str, list] = {k: [] for k in ("lpts", "ldir", "locc", "lcount")}
-    for view, s in enumerate(sample_topviews(seeds, per_world, seed)):
+    for view, s in enumerate(sample_topviews(seeds, per_world, seed, paint=paint)):
         a = s.annotation
         pts = detector.detect(s.image)
         uv = np.array([p.uv for p in pts], float).reshape(-1, 2)
@@ -421,6 +431,8 @@ def train(args: argparse.Namespace) -> None:
     target = data["target"][keep]
     print(f"{len(y)} training patches, {int(y.sum())} positive", flush=True)
     net = build_model()
+    if args.init_onnx is not None:  # fine-tune a shipped file: its batch norms stay frozen
+        load_folded_onnx(net, args.init_onnx)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     budget = args.minutes * 60.0
     t0 = time.time()
@@ -439,6 +451,8 @@ def train(args: argparse.Namespace) -> None:
                           args.line_end_negatives)
         x = torch.from_numpy(xb).permute(0, 3, 1, 2).float() / 127.5 - 1.0
         net.train()
+        if args.init_onnx is not None:
+            freeze_batch_norms(net)
         loss = _loss(net(x), torch.from_numpy(yb), torch.from_numpy(tb))
         opt.zero_grad()
         loss.backward()
@@ -574,6 +588,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=1_000_000)
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--init-onnx", type=Path, default=None,
+                   help="train: fine-tune this exported file; its batch norms stay frozen")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--scene-augment", action=argparse.BooleanOptionalAction, default=False,
                    help="train: also paving joints, hard shadows and stitching seams")

@@ -18,7 +18,7 @@ import numpy as np
 from semslam.simulation.render_topview import TopviewAnnotation, TopviewRenderer
 from semslam.simulation.world import make_world
 from semslam.simulation.world_types import World
-from semslam.types import Marking
+from semslam.types import JunctionShape, Marking
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,32 +40,44 @@ class PaintVariation:
     paint thinner lines and some draw a slot's separators as short stubs at the entrance
     (ps2.0). Per world, with probability ``thin_share`` every line gets a width drawn from
     ``thin_width`` (m), and independently with probability ``stub_share`` every separator
-    is cut to a length drawn from ``stub_length`` (m) from its junction. The junctions, and
-    so the labels, stay where they are."""
+    is cut to a length drawn from ``stub_length`` (m) from its junction. With probability
+    ``cross_share`` every T junction's separator is painted on across the entrance line,
+    ``cross_length`` (m) into the aisle (a "+" or, on slanted rows, an "X": many of the real
+    ps2.0 garages paint their junctions so). The junctions, and so the labels, stay where
+    they are."""
 
     thin_share: float = 0.5
     thin_width: tuple[float, float] = (0.05, 0.10)
     stub_share: float = 0.3
     stub_length: tuple[float, float] = (0.3, 0.8)
+    cross_share: float = 0.0
+    cross_length: tuple[float, float] = (0.1, 0.4)
 
 
 def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator) -> World:
     """``world`` with its line markings varied as ``variation`` says (see there)."""
     width = rng.uniform(*variation.thin_width) if rng.random() < variation.thin_share else None
     stub = rng.uniform(*variation.stub_length) if rng.random() < variation.stub_share else None
-    if width is None and stub is None:
+    cross = None  # no draw when crosses are off: the older variations' worlds stay as they were
+    if variation.cross_share > 0 and rng.random() < variation.cross_share:
+        cross = rng.uniform(*variation.cross_length)
+    if width is None and stub is None and cross is None:
         return world
-    starts = [(np.asarray(p.position, float), p.direction) for p in world.marking_points]
+    starts = [(np.asarray(p.position, float), p.direction, p.shape is JunctionShape.T)
+              for p in world.marking_points]
     out = []
     for m in world.markings:
         a, b = np.asarray(m.a, float), np.asarray(m.b, float)
         d = b - a
         length = float(np.hypot(*d))
         heading = math.atan2(d[1], d[0])
-        separator = any(np.hypot(*(a - q)) < 1e-6 and abs(math.remainder(heading - t, math.tau))
-                        < 1e-6 for q, t in starts)  # from a junction along its direction
+        junction = next((is_t for q, t, is_t in starts if np.hypot(*(a - q)) < 1e-6
+                         and abs(math.remainder(heading - t, math.tau)) < 1e-6), None)
+        separator = junction is not None  # from a junction along its direction
         if stub is not None and separator and length > stub:
             b = a + d * (stub / length)
+        if cross is not None and junction:
+            a = a - d * (cross / length)
         out.append(Marking(a, b, m.width if width is None else width))
     return replace(world, markings=tuple(out))
 

@@ -47,3 +47,28 @@ def test_vary_paint_never_is_the_same_world_and_poses_do_not_move() -> None:
         if len(a.annotation.points):  # junctions in view: their paint differs
             assert not np.array_equal(a.image, b.image)
     assert sum(len(a.annotation.points) > 0 for a in plain) >= 1
+
+
+def test_vary_paint_crosses_t_junctions_separators_over_the_entrance_line() -> None:
+    world = make_world("small", 3)
+    varied = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=1.0,
+                                              cross_length=(0.3, 0.3)), np.random.default_rng(0))
+    t_starts = {(round(float(p.position[0]), 6), round(float(p.position[1]), 6)): p.direction
+                for p in world.marking_points if p.shape == "T"}
+    crossed = 0
+    for before, after in zip(world.markings, varied.markings, strict=True):
+        np.testing.assert_array_equal(after.b, before.b)
+        key = (round(float(before.a[0]), 6), round(float(before.a[1]), 6))
+        d = np.asarray(before.b, float) - np.asarray(before.a, float)
+        heading = math.atan2(d[1], d[0])
+        if key in t_starts and abs(math.remainder(heading - t_starts[key], math.tau)) < 1e-6:
+            # painted on 0.3 m behind the junction, on the separator's own line
+            back = np.asarray(before.a, float) - np.asarray(after.a, float)
+            assert math.isclose(float(np.hypot(*back)), 0.3, abs_tol=1e-9)
+            assert math.isclose(math.atan2(back[1], back[0]), heading, abs_tol=1e-9)
+            crossed += 1
+        else:
+            np.testing.assert_array_equal(after.a, before.a)
+    assert crossed == len(t_starts) > 0  # every T junction, no L junction
+    assert varied.marking_points == world.marking_points
+
