@@ -42,7 +42,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: the script's own dir
 from train_point_verifier import half_plane, pavement, seam
 
 INPUT = 256  # network input side, px
@@ -457,6 +456,8 @@ def train(args: argparse.Namespace) -> None:
     if args.init is not None:  # continue from saved weights (a second, shorter run)
         net.load_state_dict(torch.load(args.init))
     if args.init_onnx is not None:  # fine-tune a shipped file: its batch norms stay frozen
+        from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: this script's dir
+
         load_folded_onnx(net, args.init_onnx)
     fast = not args.fp32 and native_bf16()
     print(f"steps in {'bf16' if fast else 'float32'}", flush=True)

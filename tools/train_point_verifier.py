@@ -54,7 +54,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: the script's own dir
 
 CANDIDATE_THRESHOLD = 0.2  # the grid's confidence above which a cell is a candidate
 SETS = {  # name: (world seeds, views per world, sampling seed, jittered copies)
@@ -432,6 +431,8 @@ def train(args: argparse.Namespace) -> None:
     print(f"{len(y)} training patches, {int(y.sum())} positive", flush=True)
     net = build_model()
     if args.init_onnx is not None:  # fine-tune a shipped file: its batch norms stay frozen
+        from onnx_weights import freeze_batch_norms, load_folded_onnx  # tools/: this script's dir
+
         load_folded_onnx(net, args.init_onnx)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     budget = args.minutes * 60.0
