@@ -58,27 +58,28 @@ def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
     return (np.asarray(points, float) + 0.5) * k - 0.5
 
 
-def paint_variation(vary_paint: bool, cross_share: float):
+def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0.0):
     """The training worlds' :class:`PaintVariation`: ``--vary-paint`` thin lines and stub
-    separators, ``--cross-share`` separators painted across the entrance line; None: as
-    the simulator paints them."""
+    separators, ``--cross-share`` separators painted across the entrance line,
+    ``--faint-share`` paint worn faint; None: as the simulator paints them."""
     from semslam.simulation.topview_samples import PaintVariation
 
     if vary_paint:
-        return PaintVariation(cross_share=cross_share)
-    if cross_share > 0:
-        return PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share)
+        return PaintVariation(cross_share=cross_share, faint_share=faint_share)
+    if cross_share > 0 or faint_share > 0:
+        return PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share,
+                              faint_share=faint_share)
     return None
 
 
-def _render_shard(args: tuple[list[int], int, int, str, bool, float]) -> str:
+def _render_shard(args: tuple[list[int], int, int, str, bool, float, float]) -> str:
     from semslam.simulation.topview_samples import sample_topviews
 
-    seeds, per_world, seed, path, vary, cross = args
+    seeds, per_world, seed, path, vary, cross, faint = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
-    for s in sample_topviews(seeds, per_world, seed, paint=paint_variation(vary, cross)):
+    for s in sample_topviews(seeds, per_world, seed, paint=paint_variation(vary, cross, faint)):
         a = s.annotation
         images.append(cv2.resize(s.image, (INPUT, INPUT), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
@@ -104,19 +105,21 @@ def render_dataset(
     seeds: list[int], per_world: int, seed: int, cache: Path, workers: int,
     vary_paint: bool = False,
     cross_share: float = 0.0,
+    faint_share: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Rendered, resized training views and their labels (600 px coordinates); the worlds'
     paint varied by :func:`paint_variation`."""
     cache.mkdir(parents=True, exist_ok=True)
     spec = ([seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
-            + ([f"cross{cross_share:g}"] if cross_share > 0 else []))
+            + ([f"cross{cross_share:g}"] if cross_share > 0 else [])
+            + ([f"faint{faint_share:g}"] if faint_share > 0 else []))
     key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
         jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
-                     cross_share))
+                     cross_share, faint_share))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -142,7 +145,8 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
         lo, hi = (int(v) for v in span.split(":"))
         seed = args.data_seed + 1000 * k
         parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
-                                    args.workers, args.vary_paint, args.cross_share))
+                                    args.workers, args.vary_paint, args.cross_share,
+                                    args.faint_share))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -670,6 +674,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="fine-tune this exported (float) file; its batch norms stay frozen")
     p.add_argument("--cross-share", type=float, default=0.0,
                    help="share of training worlds whose separators cross the entrance line")
+    p.add_argument("--faint-share", type=float, default=0.0,
+                   help="share of training worlds whose paint is worn faint")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
     p.add_argument("--fp32", action="store_true",

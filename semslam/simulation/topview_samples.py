@@ -43,8 +43,9 @@ class PaintVariation:
     is cut to a length drawn from ``stub_length`` (m) from its junction. With probability
     ``cross_share`` every T junction's separator is painted on across the entrance line,
     ``cross_length`` (m) into the aisle (a "+" or, on slanted rows, an "X": many of the real
-    ps2.0 garages paint their junctions so). The junctions, and so the labels, stay where
-    they are."""
+    ps2.0 garages paint their junctions so). With probability ``faint_share`` the paint is
+    worn faint: its colour pulled towards mid grey (128) by a share drawn from ``faint_mix``.
+    The junctions, and so the labels, stay where they are."""
 
     thin_share: float = 0.5
     thin_width: tuple[float, float] = (0.05, 0.10)
@@ -52,6 +53,8 @@ class PaintVariation:
     stub_length: tuple[float, float] = (0.3, 0.8)
     cross_share: float = 0.0
     cross_length: tuple[float, float] = (0.1, 0.4)
+    faint_share: float = 0.0
+    faint_mix: tuple[float, float] = (0.3, 0.7)
 
 
 def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator) -> World:
@@ -61,6 +64,12 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
     cross = None  # no draw when crosses are off: the older variations' worlds stay as they were
     if variation.cross_share > 0 and rng.random() < variation.cross_share:
         cross = rng.uniform(*variation.cross_length)
+    faint = None  # likewise
+    if variation.faint_share > 0 and rng.random() < variation.faint_share:
+        faint = rng.uniform(*variation.faint_mix)
+    if faint is not None:
+        colour = tuple(int(round(c + (128.0 - c) * faint)) for c in world.line_colour)
+        world = replace(world, line_colour=colour)
     if width is None and stub is None and cross is None:
         return world
     starts = [(np.asarray(p.position, float), p.direction, p.shape is JunctionShape.T)

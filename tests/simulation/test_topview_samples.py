@@ -72,3 +72,13 @@ def test_vary_paint_crosses_t_junctions_separators_over_the_entrance_line() -> N
     assert crossed == len(t_starts) > 0  # every T junction, no L junction
     assert varied.marking_points == world.marking_points
 
+
+
+def test_vary_paint_wears_the_paint_faint_towards_grey() -> None:
+    world = make_world("small", 3)
+    varied = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, faint_share=1.0,
+                                              faint_mix=(0.5, 0.5)), np.random.default_rng(0))
+    assert varied.line_colour == tuple(int(round((c + 128) / 2)) for c in world.line_colour)
+    assert varied.line_colour != world.line_colour
+    assert varied.markings == world.markings  # only the colour, the lines where they were
+    assert varied.marking_points == world.marking_points
