@@ -42,7 +42,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from train_point_verifier import half_plane, pavement, seam
+from train_point_verifier import half_plane, pavement, seam  # tools/: the script's own dir
 
 INPUT = 256  # network input side, px
 GRID = 16  # output cells per side

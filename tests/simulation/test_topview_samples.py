@@ -73,7 +73,6 @@ def test_vary_paint_crosses_t_junctions_separators_over_the_entrance_line() -> N
     assert varied.marking_points == world.marking_points
 
 
-
 def test_vary_paint_wears_the_paint_faint_towards_grey() -> None:
     world = make_world("small", 3)
     varied = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, faint_share=1.0,
