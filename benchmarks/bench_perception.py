@@ -271,6 +271,9 @@ def main() -> None:
                         help="keep the points with no entrance line across their separator")
     parser.add_argument("--verifier", type=Path, default=None,
                         help="another verifier ONNX file (default: the shipped one)")
+    parser.add_argument("--no-mirror-look", action="store_true",
+                        help="no second, mirrored look at the candidates the verifier is "
+                        "unsure of (PointVerifier.mirror_look)")
     parser.add_argument("--cross-share", type=float, default=0.0,
                         help="share of the simulated worlds whose separators are painted "
                         "across the entrance line (PaintVariation.cross_share; default none)")
@@ -280,6 +283,8 @@ def main() -> None:
     slots = SlotDetector(args.points_model, verify=not args.no_verify,
                          verifier_path=args.verifier,
                          check_entrance=not args.no_entrance_check)
+    if slots.points.verifier is not None:
+        slots.points.verifier.mirror_look = not args.no_mirror_look
     perception = TopviewPerception(lines=False, slot_detector=slots,
                                    id_reader=SlotIdReader(args.id_model))
     sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),

@@ -21,6 +21,7 @@ from semslam.perception.marking_points import (
 from semslam.perception.onnx_model import model_path
 from semslam.perception.point_verifier import (
     DEFAULT_MODEL,
+    MIRROR_LOOK_BAND,
     PATCH_PX,
     SPAN_PX,
     PointVerifier,
@@ -192,6 +193,31 @@ def test_verify_crops_and_scores_in_halves_as_one_by_one(verifier, candidates):
     for part, each in zip(whole, zip(*alone, strict=True), strict=True):
         np.testing.assert_allclose(part, np.concatenate(each), atol=1e-5)
         assert len(part) == len(uv)
+
+
+def test_mirror_look_where_the_first_is_uncertain(verifier, candidates):
+    """Patches with a first verdict inside MIRROR_LOOK_BAND get the mean of it and the
+    mirrored patch's verdict mirrored back (the turn a unit vector); the others keep
+    their first. Where both a
+    patch and its mirror are uncertain, their verdicts are then mirror images: the same
+    probability and forward move, opposite sideways moves and turns."""
+    patches = np.concatenate(
+        [crop_point_patches(image, uv, d) for image, uv, d, *_ in candidates[:12]])
+    raw = PointVerifier(mirror_look=False)
+    first, mirrored = raw.score(patches), raw.score(np.ascontiguousarray(patches[:, :, ::-1]))
+    lo, hi = MIRROR_LOOK_BAND
+    unsure = (first[:, 0] >= lo) & (first[:, 0] <= hi)
+    assert 0 < unsure.sum() < len(patches)
+    sign = np.array([1.0, -1.0, 1.0, 1.0, -1.0])
+    mean = 0.5 * (first + sign * mirrored)
+    mean[:, 3:] /= np.hypot(mean[:, 3], mean[:, 4])[:, None]
+    want = np.where(unsure[:, None], mean, first)
+    np.testing.assert_allclose(verifier.score(patches), want, atol=1e-6)
+    both = unsure & (mirrored[:, 0] >= lo) & (mirrored[:, 0] <= hi)
+    assert both.any()
+    np.testing.assert_allclose(
+        verifier.score(np.ascontiguousarray(patches[both, :, ::-1])),
+        verifier.score(patches[both]) * sign, atol=1e-6)
 
 
 def test_no_candidate_left_out_could_be_kept():
