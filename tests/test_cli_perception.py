@@ -59,6 +59,19 @@ def test_detect_refuses_a_file_that_is_not_an_image(tmp_path):
     assert result.exit_code == 2 and "not an image OpenCV can read" in result.stderr
 
 
+def test_detect_refuses_a_jpeg_cut_short(tmp_path):
+    """OpenCV decodes a truncated JPEG's first rows and greys the rest; semslam refuses it."""
+    whole = tmp_path / "whole.jpg"
+    cv2.imwrite(str(whole), np.full((600, 600, 3), 90, np.uint8))
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(data[: len(data) // 2])
+    result = _run("detect", cut)
+    assert result.exit_code == 2 and "cut.jpg: JPEG cut short" in result.stderr
+    assert "Traceback" not in result.output
+    assert _run("detect", whole, "--json").exit_code == 0
+
+
 def test_evaluate_detections_scores_labelled_views(labelled_views):
     result = _run(
         "evaluate", "detections", labelled_views / "images", labelled_views / "labels", "--json"

@@ -10,18 +10,29 @@ import numpy as np
 
 from semslam.errors import FormatError
 
+_JPEG_START = b"\xff\xd8"
+_JPEG_END = b"\xff\xd9"
+_JPEG_TAIL = 1024
+"""Bytes at a JPEG file's end searched for its end-of-image marker (writers may pad after it)."""
+
 
 def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     """An image file (any format OpenCV reads) as uint8 BGR (H, W, 3), grey images
     expanded, or as grey (H, W) with ``grey``.
 
     Raises:
-        FormatError: the file is missing or not an image OpenCV can read.
+        FormatError: the file is missing, not an image OpenCV can read, or a JPEG cut short
+            (OpenCV would decode what is there and fill the rest with grey).
     """
     p = Path(path)
     if not p.is_file():
         raise FormatError(f"{p}: no such image file")
-    image = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR)
+    data = p.read_bytes()
+    if data.startswith(_JPEG_START) and _JPEG_END not in data[-_JPEG_TAIL:]:
+        raise FormatError(f"{p}: JPEG cut short (no end-of-image marker), {len(data)} bytes")
+    image = cv2.imdecode(
+        np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
+    )
     if image is None:
         raise FormatError(f"{p}: not an image OpenCV can read")
     return image
