@@ -30,9 +30,11 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     data = p.read_bytes()
     if data.startswith(_JPEG_START) and _JPEG_END not in data[-_JPEG_TAIL:]:
         raise FormatError(f"{p}: JPEG cut short (no end-of-image marker), {len(data)} bytes")
-    image = cv2.imdecode(
-        np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
-    )
+    image = None
+    if data:  # imdecode asserts on an empty buffer
+        image = cv2.imdecode(
+            np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
+        )
     if image is None:
         raise FormatError(f"{p}: not an image OpenCV can read")
     return image
