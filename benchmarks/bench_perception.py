@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
         [--json out.json] [--points-model OTHER.onnx] [--no-verify] [--no-entrance-check]
-        [--cross-share 1.0]
+        [--no-mirror-look] [--cross-share 1.0]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn

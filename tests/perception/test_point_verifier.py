@@ -198,9 +198,9 @@ def test_verify_crops_and_scores_in_halves_as_one_by_one(verifier, candidates):
 def test_mirror_look_where_the_first_is_uncertain(verifier, candidates):
     """Patches with a first verdict inside MIRROR_LOOK_BAND get the mean of it and the
     mirrored patch's verdict mirrored back (the turn a unit vector); the others keep
-    their first. Where both a
-    patch and its mirror are uncertain, their verdicts are then mirror images: the same
-    probability and forward move, opposite sideways moves and turns."""
+    their first. Where both a patch and its mirror are uncertain, their verdicts are then
+    mirror images: the same probability and forward move, opposite sideways moves and
+    turns."""
     patches = np.concatenate(
         [crop_point_patches(image, uv, d) for image, uv, d, *_ in candidates[:12]])
     raw = PointVerifier(mirror_look=False)
