@@ -344,6 +344,7 @@ def detect(
 
 class RobustMode(StrEnum):
     maxmix = "maxmix"
+    dcs = "dcs"
     none = "none"
 
 
@@ -354,7 +355,11 @@ def optimize(
         str, typer.Option("-o", "--output", metavar="PATH", help="Optimised graph to write.")
     ],
     robust: Annotated[
-        RobustMode, typer.Option(help="maxmix: EDGE_SE2_MIXTURE as max-mixtures; none: LS.")
+        RobustMode,
+        typer.Option(
+            help="maxmix: EDGE_SE2_MIXTURE as max-mixtures; dcs: each mixture's measurement "
+            "with dynamic covariance scaling (outlier closures only); none: LS."
+        ),
     ] = RobustMode.maxmix,
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:

@@ -212,6 +212,17 @@ def test_optimize_solves_a_small_g2o_graph_and_refuses_a_broken_one(tmp_path):
     summary = json.loads(result.stdout)
     assert summary["mixtures"] == 1 and summary["accepted"] == 1
     assert "VERTEX_SE2 2 2" in out.read_text()
+    result = _run("optimize", graph, "-o", out, "--robust", "dcs", "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["robust"] == "dcs" and summary["accepted"] == 1
+    two_targets = lines[:-1] + [
+        f"EDGE_SE2_MIXTURE 0 2 2 EDGE_SE2 1 0 2 2 0 0 {info} EDGE_SE2 1 0 1 2 0 0 {info}"
+    ]
+    graph.write_text("\n".join(two_targets) + "\n")
+    result = _run("optimize", graph, "-o", out, "--robust", "dcs")
+    assert result.exit_code == 2 and "use 'maxmix'" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
     graph.write_text("VERTEX_SE2 0 0 0\n")
     result = _run("optimize", graph, "-o", out)
     assert result.exit_code == 2 and "line 1" in result.stderr

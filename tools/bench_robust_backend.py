@@ -32,14 +32,17 @@ import sys
 import time
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from semslam.chi2 import chi2_quantile  # noqa: E402
 from semslam.io.g2o import PoseGraph2D, read_g2o  # noqa: E402
-from semslam.mapping.pose_graph import optimize_pose_graph  # noqa: E402
+from semslam.mapping.g2o_factors import between_factor, null_components  # noqa: E402
+from semslam.mapping.pose_graph import FIX_SIGMA, optimize_pose_graph  # noqa: E402
 
 DEFAULT_ROOT = REPO.parent / "shared" / "benchmarks" / "robust-backend" / "manhattan"
 CLEAN = "manhattanOlson3500.g2o"
@@ -51,8 +54,22 @@ METHODS = {
     "maxmix-inc-nogate": {"robust": "maxmix", "schedule": "incremental", "gate_probability": None},
     "maxmix-inc": {"robust": "maxmix", "schedule": "incremental"},
     "maxmix": {"robust": "maxmix"},  # the library's default: schedule "auto"
+    "dcs": {"robust": "dcs"},  # the library's dynamic covariance scaling (outlier files only)
 }
 DEFAULT_METHODS = ("none", "maxmix-batch", "maxmix")
+#: The field's other robust back-ends in gtsam, run on the outlier files only (each closure's
+#: measurement component with a robust loss; the null component is dropped): M-estimators
+#: on a batch LM from the file's initial guess, and graduated non-convexity with a
+#: truncated quadratic (Yang et al. 2020), odometry and the prior known inliers.
+BASELINES = {
+    "huber": lambda: gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+    "cauchy": lambda: gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+    "gm": lambda: gtsam.noiseModel.mEstimator.GemanMcClure.Create(1.0),
+    "gnc-tls": None,
+}
+#: A baseline "accepts" a closure whose chi-square at its solution is within this quantile
+#: of chi2(3) (GNC: whose final weight is above one half).
+BASELINE_ACCEPT_PROBABILITY = 0.99
 
 
 # --------------------------------------------------------------------------- metrics
@@ -88,6 +105,75 @@ def classify(graph: PoseGraph2D) -> str:
     return "multimodal"
 
 
+# --------------------------------------------------------------------------- baselines
+
+
+class BaselineResult:
+    """What :func:`solve_baseline` returns: the same fields the tool reads from
+    :func:`optimize_pose_graph`'s result."""
+
+    def __init__(self, poses: np.ndarray, accepted: np.ndarray, iterations: int) -> None:
+        self.poses = poses
+        self.accepted = accepted
+        self.iterations = iterations
+        self.updates = 0
+        self.error = float("nan")
+        self.gated = np.zeros(len(accepted), dtype=bool)
+
+
+def solve_baseline(graph: PoseGraph2D, method: str) -> BaselineResult:
+    """One of :data:`BASELINES` on a graph whose mixtures are (measurement, null) pairs."""
+    order = sorted(graph.vertices)
+    fixed = [v for v in graph.fixed if v in graph.vertices] or [order[0]]
+    fg = gtsam.NonlinearFactorGraph()
+    for vid in fixed:
+        fg.add(
+            gtsam.PriorFactorPose2(
+                vid,
+                gtsam.Pose2(*graph.vertices[vid]),
+                gtsam.noiseModel.Isotropic.Sigma(3, FIX_SIGMA),
+            )
+        )
+    for e in graph.edges:
+        fg.add(between_factor(e))
+    known_inliers = list(range(fg.size()))
+    closures = []
+    for mix in graph.mixtures:
+        real = [
+            c.edge for c, null in zip(mix.components, null_components(mix), strict=True) if not null
+        ]
+        if len(real) != 1:
+            raise ValueError(f"{method}: a mixture with {len(real)} non-null components")
+        closures.append(real[0])
+    kernel = BASELINES[method]
+    for e in closures:
+        gaussian = gtsam.noiseModel.Gaussian.Information(e.information)
+        noise = gaussian if kernel is None else gtsam.noiseModel.Robust.Create(kernel(), gaussian)
+        fg.add(between_factor(e, noise))
+    values = gtsam.Values()
+    for vid, p in graph.vertices.items():
+        values.insert(vid, gtsam.Pose2(*p))
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(200)
+    if kernel is None:
+        params = gtsam.GncLMParams(lm)
+        params.setLossType(gtsam.GncLossType.TLS)
+        params.setKnownInliers(known_inliers)
+        gnc = gtsam.GncLMOptimizer(fg, values, params)
+        gnc.setInlierCostThresholdsAtProbability(BASELINE_ACCEPT_PROBABILITY)
+        result = gnc.optimize()
+        accepted = np.asarray(gnc.getWeights())[len(known_inliers) :] > 0.5
+        iterations = -1
+    else:
+        optimizer = gtsam.LevenbergMarquardtOptimizer(fg, values, lm)
+        result = optimizer.optimize()
+        iterations = optimizer.iterations()
+        gate = chi2_quantile(BASELINE_ACCEPT_PROBABILITY, 3)
+        accepted = np.array([2.0 * between_factor(e).error(result) <= gate for e in closures])
+    poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(v) for v in order)])
+    return BaselineResult(poses, accepted, iterations)
+
+
 # --------------------------------------------------------------------------- runs
 
 
@@ -102,7 +188,10 @@ def run_file(
     graph = read_g2o(path)
     kind = classify(graph)
     t0 = time.perf_counter()
-    result = optimize_pose_graph(graph, **METHODS[method])
+    if method in BASELINES:
+        result = solve_baseline(graph, method)
+    else:
+        result = optimize_pose_graph(graph, **METHODS[method])
     seconds = time.perf_counter() - t0
     row: dict = {
         "file": path.name,
@@ -202,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--methods",
         default=",".join(DEFAULT_METHODS),
-        help=f"comma-separated, from {', '.join(METHODS)} (default: %(default)s)",
+        help=f"comma-separated, from {', '.join([*METHODS, *BASELINES])} "
+        "(default: %(default)s; the baselines run on the outlier files only)",
     )
     parser.add_argument("--only", default="", help="run only files whose name contains this text")
     parser.add_argument(
@@ -216,9 +306,9 @@ def main(argv: list[str] | None = None) -> int:
     methods = [m for m in args.methods.split(",") if m]
     if args.gate is not None:
         METHODS["maxmix"] = {**METHODS["maxmix"], "gate_probability": args.gate}
-    unknown = [m for m in methods if m not in METHODS]
+    unknown = [m for m in methods if m not in METHODS and m not in BASELINES]
     if unknown:
-        parser.error(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+        parser.error(f"unknown method(s) {unknown}; choose from {[*METHODS, *BASELINES]}")
     root = args.root.resolve()
     files = sorted(p for p in root.rglob("*.g2o") if args.only in p.name)
     gt_path = root / GROUND_TRUTH
@@ -245,6 +335,8 @@ def main(argv: list[str] | None = None) -> int:
     for path in files:
         kind = classify(read_g2o(path))
         todo = ["none"] if kind == "clean" else methods
+        if kind != "outliers":
+            todo = [m for m in todo if m not in BASELINES and m != "dcs"]
         if kind == "multimodal" and "maxmix" in todo:
             # "auto" runs these as plain batch max-mixture: the same run as maxmix-batch
             todo = [m for m in todo if m != "maxmix-batch"]

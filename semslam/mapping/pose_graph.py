@@ -60,6 +60,17 @@ Two modes:
     (mixtures over several pose pairs cannot be played back in time order:
     the benchmark's multimodal hypotheses point at poses not yet driven).
 
+``robust="dcs"``
+    Dynamic covariance scaling (Agarwal et al. 2013, the closed form of switchable
+    constraints; g2o's and gtsam's ``DCS`` kernel): each mixture's one measurement
+    component, its null dropped, as a between factor whose information is scaled by
+    ``s^2``, ``s = min(1, 2 phi / (phi + chi2))``; one Levenberg-Marquardt solve from the
+    file's vertices. A loss, not a choice: a mixture with several measurement components
+    (the multimodal files) is refused. A closure counts as accepted when its chi-square at
+    the solution is within ``chi2_3(gate_probability)``. On the Manhattan outlier files it
+    is as accurate as the max-mixture's front end and ten to sixty times faster
+    (``benchmarks/robust_backend.md``).
+
 Gauge: the poses named by FIX lines are held by a tight prior; without FIX,
 the first pose (lowest id). Poses and points share the id space of the file.
 Factors are built by :mod:`semslam.mapping.g2o_factors`; results are numpy.
@@ -87,7 +98,10 @@ from semslam.mapping.g2o_factors import (
     point_factor,
 )
 
-ROBUST_MODES = ("none", "maxmix")
+ROBUST_MODES = ("none", "maxmix", "dcs")
+
+#: DCS's kernel width ``phi`` (chi-square units): the value of Agarwal et al. and g2o.
+DCS_PHI = 1.0
 SCHEDULES = ("auto", "incremental", "batch")
 
 #: Standard deviation of the prior that holds a fixed pose (metres, radians).
@@ -116,7 +130,7 @@ class PoseGraphResult:
             mixture, admitted or not, at its best component) at the solution; for
             ``robust="none"`` the least-squares cost.
         seconds: wall time.
-        robust: ``"none"`` or ``"maxmix"``.
+        robust: ``"none"``, ``"maxmix"`` or ``"dcs"``.
         schedule: ``"batch"`` or ``"incremental"``.
     """
 
@@ -306,14 +320,15 @@ def optimize_pose_graph(
 
     Args:
         graph: the pose graph; its vertices are the initial guess.
-        robust: ``"none"`` (least squares, highest-weight component of each mixture) or
-            ``"maxmix"``.
+        robust: ``"none"`` (least squares, highest-weight component of each mixture),
+            ``"maxmix"`` or ``"dcs"`` (see the module doc).
         schedule: ``"incremental"``, ``"batch"`` or ``"auto"`` (incremental when every mixture
             joins one pose pair and every pose but the first has a plain edge to an earlier
             pose in id order; batch otherwise). Only used with ``robust="maxmix"``.
         gate_probability: confidence of the front end's chi-square gates (innovation test and
             cluster re-check); None turns the front end off (pure max-mixture, played back in
-            time order). Used by the incremental schedule only. The default 0.99 is one global
+            time order). Used by the incremental schedule, and by ``"dcs"`` to call a closure
+            accepted (None: 0.99 there). The default 0.99 is one global
             setting, chosen on the Manhattan benchmark (0.999 leaves more of the local-groups
             file's wrong closures in; see ``benchmarks/robust_backend.md``).
         cluster_gap: two accepted closures belong to one cluster when both of their ends are at
@@ -327,8 +342,9 @@ def optimize_pose_graph(
 
     Raises:
         ValueError: an unknown mode or schedule.
-        MappingError: a graph without poses, or gtsam found the system indeterminate
-            (under-constrained or too poorly conditioned); one line naming the variable.
+        MappingError: a graph without poses, a mixture with several measurement components
+            for ``"dcs"``, or gtsam found the system indeterminate (under-constrained or too
+            poorly conditioned); one line naming the variable.
     """
     if robust not in ROBUST_MODES:
         raise ValueError(f"robust must be one of {ROBUST_MODES}, got {robust!r}")
@@ -338,8 +354,10 @@ def optimize_pose_graph(
         raise ValueError(f"gate_probability must be in (0, 1) or None, got {gate_probability}")
     start = time.perf_counter()
     problem = _problem(graph)
-    if robust == "none":
+    if robust in ("none", "dcs"):
         try:
+            if robust == "dcs":
+                return _dcs(problem, gate_probability or 0.99, max_iterations, start)
             return _least_squares(problem, max_iterations, start)
         except RuntimeError as exc:
             raise _indeterminate(exc) from None
@@ -407,6 +425,46 @@ def _least_squares(problem: _Problem, max_iterations: int, start: float) -> Pose
         float(fg.error(values)),
         start,
         "none",
+        "batch",
+    )
+
+
+def _dcs(problem: _Problem, probability: float, max_iterations: int, start: float):
+    """Dynamic covariance scaling on each mixture's one measurement component."""
+    fg = _base_factors(problem)
+    edges = []
+    for index, mix in enumerate(problem.mixtures):
+        if len(mix.real) != 1:
+            raise MappingError(
+                f"robust 'dcs' takes one measurement per mixture (and its null); mixture "
+                f"{index} ({mix.mixture.a} -> {mix.mixture.b}) has {len(mix.real)}: use 'maxmix'"
+            )
+        edge = mix.components[mix.real[0]].edge
+        edges.append(edge)
+        gaussian = gtsam.noiseModel.Gaussian.Information(edge.information)
+        kernel = gtsam.noiseModel.mEstimator.DCS.Create(DCS_PHI)
+        fg.add(between_factor(edge, gtsam.noiseModel.Robust.Create(kernel, gaussian)))
+    values, iterations = _lm(fg, _file_values(problem), max_iterations)
+    gate = chi2_quantile(probability, 3)
+    accepted = np.array([2.0 * between_factor(e).error(values) <= gate for e in edges], bool)
+    chosen = np.array(
+        [
+            mix.real[0] if ok or not mix.nulls else mix.nulls[0]
+            for mix, ok in zip(problem.mixtures, accepted, strict=True)
+        ],
+        dtype=int,
+    )
+    return _pack(
+        problem,
+        values,
+        chosen,
+        accepted,
+        np.zeros(len(chosen), bool),
+        iterations,
+        0,
+        _model_cost(problem, values),
+        start,
+        "dcs",
         "batch",
     )
 

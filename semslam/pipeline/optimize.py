@@ -26,7 +26,7 @@ def optimize_g2o_file(
     Args:
         in_path: the input graph (its vertices are the initial guess).
         out_path: the output graph; its folder is created if missing.
-        robust: ``"none"`` or ``"maxmix"``.
+        robust: ``"none"``, ``"maxmix"`` or ``"dcs"``.
         **options: passed to :func:`~semslam.mapping.pose_graph.optimize_pose_graph`
             (``schedule``, ``gate_probability``...).
 
