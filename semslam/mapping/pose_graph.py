@@ -100,7 +100,7 @@ from semslam.mapping.g2o_factors import (
 
 ROBUST_MODES = ("none", "maxmix", "dcs")
 
-#: DCS's kernel width ``phi`` (chi-square units): the value of Agarwal et al. and g2o.
+#: DCS's default kernel width ``phi`` (chi-square units): the value of Agarwal et al. and g2o.
 DCS_PHI = 1.0
 SCHEDULES = ("auto", "incremental", "batch")
 
@@ -315,6 +315,7 @@ def optimize_pose_graph(
     max_rounds: int = 6,
     max_iterations: int = 100,
     relinearize_threshold: float = 0.01,
+    dcs_phi: float = DCS_PHI,
 ) -> PoseGraphResult:
     """Optimise ``graph``; see the module doc for the modes.
 
@@ -336,6 +337,9 @@ def optimize_pose_graph(
         max_rounds: re-check rounds at most.
         max_iterations: Levenberg-Marquardt iterations per batch solve.
         relinearize_threshold: iSAM2's relinearisation threshold.
+        dcs_phi: DCS's kernel width (``robust="dcs"`` only). No one value suits every graph:
+            on Manhattan 0.3-1 find the clean solution and 3 or more take wrong closures,
+            while on a graph with drift 3 or more is needed (``benchmarks/robust_backend.md``).
 
     Returns:
         The optimised poses and points, the chosen component of every mixture and statistics.
@@ -350,6 +354,8 @@ def optimize_pose_graph(
         raise ValueError(f"robust must be one of {ROBUST_MODES}, got {robust!r}")
     if schedule not in SCHEDULES:
         raise ValueError(f"schedule must be one of {SCHEDULES}, got {schedule!r}")
+    if not dcs_phi > 0.0:
+        raise ValueError(f"dcs_phi must be positive, got {dcs_phi}")
     if gate_probability is not None and not 0.0 < gate_probability < 1.0:
         raise ValueError(f"gate_probability must be in (0, 1) or None, got {gate_probability}")
     start = time.perf_counter()
@@ -357,7 +363,7 @@ def optimize_pose_graph(
     if robust in ("none", "dcs"):
         try:
             if robust == "dcs":
-                return _dcs(problem, gate_probability or 0.99, max_iterations, start)
+                return _dcs(problem, dcs_phi, gate_probability or 0.99, max_iterations, start)
             return _least_squares(problem, max_iterations, start)
         except RuntimeError as exc:
             raise _indeterminate(exc) from None
@@ -429,7 +435,7 @@ def _least_squares(problem: _Problem, max_iterations: int, start: float) -> Pose
     )
 
 
-def _dcs(problem: _Problem, probability: float, max_iterations: int, start: float):
+def _dcs(problem: _Problem, phi: float, probability: float, max_iterations: int, start: float):
     """Dynamic covariance scaling on each mixture's one measurement component."""
     fg = _base_factors(problem)
     edges = []
@@ -442,7 +448,7 @@ def _dcs(problem: _Problem, probability: float, max_iterations: int, start: floa
         edge = mix.components[mix.real[0]].edge
         edges.append(edge)
         gaussian = gtsam.noiseModel.Gaussian.Information(edge.information)
-        kernel = gtsam.noiseModel.mEstimator.DCS.Create(DCS_PHI)
+        kernel = gtsam.noiseModel.mEstimator.DCS.Create(phi)
         fg.add(between_factor(edge, gtsam.noiseModel.Robust.Create(kernel, gaussian)))
     values, iterations = _lm(fg, _file_values(problem), max_iterations)
     gate = chi2_quantile(probability, 3)

@@ -209,6 +209,8 @@ def test_dcs_down_weights_the_wrong_closures_and_refuses_several_hypotheses():
     # out on the kernel's tail and DCS stops in a local minimum; the max-mixture's
     # incremental schedule does not (the test above)
     assert _rmse(optimize_pose_graph(g, "dcs").poses, ref) > 0.3
+    # a wider kernel finds it here (and takes wrong closures on Manhattan)
+    assert _rmse(optimize_pose_graph(g, "dcs", dcs_phi=10.0).poses, ref) < 1e-3
     g.vertices = {i: ref[i] + (0.05 if i else 0.0) for i in range(len(ref))}
     dcs = optimize_pose_graph(g, "dcs")
     assert (dcs.robust, dcs.schedule, dcs.updates) == ("dcs", "batch", 0)
@@ -295,6 +297,8 @@ def test_bad_arguments():
         optimize_pose_graph(g, "huber")
     with pytest.raises(ValueError, match="schedule"):
         optimize_pose_graph(g, schedule="later")
+    with pytest.raises(ValueError, match="dcs_phi"):
+        optimize_pose_graph(g, "dcs", dcs_phi=0.0)
     with pytest.raises(ValueError, match="gate_probability"):
         optimize_pose_graph(g, gate_probability=1.5)
     broken = PoseGraph2D(vertices={0: np.zeros(3), 1: np.zeros(3)})  # no edges: no chain
