@@ -31,6 +31,7 @@ import numpy as np
 
 from semslam.errors import MappingError
 from semslam.geometry import FloatArray
+from semslam.mapping.levenberg import levenberg_marquardt
 
 
 class Graph:
@@ -145,44 +146,17 @@ class Graph:
     def optimize_batch(self, max_iterations: int = 20, relative_tolerance: float = 1e-5) -> int:
         """Levenberg-Marquardt over all factors from iSAM2's estimate; returns iterations.
 
-        A plain LM loop over gtsam's linearize / eliminate / retract: damping ``lambda I``
-        added as unit Jacobian factors, a step kept only if the nonlinear error drops (so
-        the max-mixtures' switching is judged on the true error), lambda / 10 after a kept
-        step and x 10 after a refused one. Written here rather than calling
-        gtsam.LevenbergMarquardtOptimizer because that optimizer calls the Python factors
-        with its own Values, which pybind11 copies for every call (see the module
-        docstring): ~15x longer per iteration on `garage` (5 s against 0.5 s). Here the
-        Values is ours, passed by reference.
+        :func:`~semslam.mapping.levenberg.levenberg_marquardt`, not
+        gtsam.LevenbergMarquardtOptimizer: that optimizer calls the Python factors with its
+        own Values, which pybind11 copies for every call (see the module docstring): ~15x
+        longer per iteration on `garage` (5 s against 0.5 s).
         """
-        values = self.estimate
-        error = self.factors.error(values)
-        lam, iterations = 1e-5, 0
-        while iterations < max_iterations:
-            iterations += 1
-            linear = self.factors.linearize(values)
-            while lam <= 1e10:
-                damped = gtsam.GaussianFactorGraph()
-                damped.push_back(linear)
-                for key, dim in self._dims.items():
-                    damped.add(gtsam.JacobianFactor(
-                        key, np.eye(dim) * np.sqrt(lam), np.zeros(dim), self._unit[dim]
-                    ))
-                try:
-                    candidate = values.retract(damped.optimize())
-                except RuntimeError as e:
-                    raise MappingError(
-                        f"the factor graph could not be solved: {_first_line(e)}"
-                    ) from None
-                new_error = self.factors.error(candidate)
-                if new_error <= error:
-                    break
-                lam *= 10.0
-            else:
-                break  # no damping gives a lower error: converged
-            improvement = error - new_error
-            values, error, lam = candidate, new_error, max(lam / 10.0, 1e-12)
-            if improvement <= relative_tolerance * max(error, 1e-12):
-                break
+        try:
+            values, iterations = levenberg_marquardt(
+                self.factors, self.estimate, max_iterations, relative_tolerance, self._dims
+            )
+        except RuntimeError as e:
+            raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
         self._batch = values
         return iterations
 

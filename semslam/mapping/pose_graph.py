@@ -97,12 +97,16 @@ from semslam.mapping.g2o_factors import (
     between_residual,
     point_factor,
 )
+from semslam.mapping.levenberg import levenberg_marquardt
 
 ROBUST_MODES = ("none", "maxmix", "dcs")
 
 #: DCS's default kernel width ``phi`` (chi-square units): the value of Agarwal et al. and g2o.
 DCS_PHI = 1.0
 SCHEDULES = ("auto", "incremental", "batch")
+
+#: Levenberg-Marquardt stops when a step lowers the error by at most this share of it.
+LM_RELATIVE_TOLERANCE = 1e-7
 
 #: Standard deviation of the prior that holds a fixed pose (metres, radians).
 FIX_SIGMA = 1e-6
@@ -214,13 +218,10 @@ def _file_values(problem: _Problem) -> gtsam.Values:
 
 
 def _lm(fg: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int):
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-7)
-    params.setAbsoluteErrorTol(1e-9)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    result = optimizer.optimize()
-    return result, int(optimizer.iterations())
+    """Levenberg-Marquardt from Python (:mod:`semslam.mapping.levenberg`): the landmark and
+    max-mixture factors are Python, which gtsam's own optimizer would call with copies of
+    the whole Values."""
+    return levenberg_marquardt(fg, values, max_iterations, LM_RELATIVE_TOLERANCE)
 
 
 def _model_cost(problem: _Problem, values: gtsam.Values) -> float:
