@@ -1,6 +1,6 @@
 """Optimise a 2D g2o pose graph with max-mixture loop closures (GTSAM).
 
-Two modes:
+Three modes:
 
 ``robust="none"``
     Plain least squares: every mixture contributes its highest-weight
@@ -68,8 +68,9 @@ Two modes:
     file's vertices. A loss, not a choice: a mixture with several measurement components
     (the multimodal files) is refused. A closure counts as accepted when its chi-square at
     the solution is within ``chi2_3(gate_probability)``. On the Manhattan outlier files it
-    is as accurate as the max-mixture's front end and ten to sixty times faster
-    (``benchmarks/robust_backend.md``).
+    ends closer to the outlier-free solution than the max-mixture, ten to sixty times
+    faster; but it needs a good initial guess and a ``phi`` that suits the graph (no one
+    value solves both Manhattan and a graph with drift, ``benchmarks/robust_backend.md``).
 
 Gauge: the poses named by FIX lines are held by a tight prior; without FIX,
 the first pose (lowest id). Poses and points share the id space of the file.
