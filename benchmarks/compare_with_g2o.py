@@ -35,30 +35,32 @@ import tempfile
 import time
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from semslam.errors import MappingError  # noqa: E402
 from semslam.io.g2o import PoseGraph2D, read_g2o  # noqa: E402
-from semslam.mapping.g2o_factors import null_components  # noqa: E402
-from semslam.mapping.pose_graph import DCS_PHI, optimize_pose_graph  # noqa: E402
+from semslam.mapping.g2o_factors import between_factor  # noqa: E402
+from semslam.mapping.pose_graph import (  # noqa: E402
+    DCS_PHI,
+    optimize_pose_graph,
+    plain_graph,
+    single_measurements,
+)
 
 G2O_SOLVER = Path(__file__).with_name("g2o_solve.py")
 
 
-def closure_edges(graph: PoseGraph2D):
+def closure_edges(graph: PoseGraph2D) -> list | None:
     """Each mixture's one measurement component, or None when a mixture has several."""
-    edges = []
-    for mix in graph.mixtures:
-        real = [
-            c.edge for c, null in zip(mix.components, null_components(mix), strict=True) if not null
-        ]
-        if len(real) != 1:
-            return None
-        edges.append(real[0])
-    return edges
+    try:
+        return single_measurements(graph)
+    except MappingError:
+        return None
 
 
 def solve_with_g2o(graph: PoseGraph2D, robust: str, iterations: int, python: str):
@@ -95,22 +97,18 @@ def _edge_json(edge) -> dict:
 
 
 def plain_chi2(graph: PoseGraph2D, poses: dict, points: dict, closures) -> float:
-    """Chi-square of the plain graph (odometry, landmark edges and, if given, the closures
-    without any kernel) at a solution; the same formula for both solvers."""
-    from semslam.geometry import between, wrap_angle
-
-    total = 0.0
-    for edge in [*graph.edges, *(closures or [])]:
-        r = between(poses[edge.a], poses[edge.b]) - np.asarray(edge.measurement)
-        r[2] = wrap_angle(r[2])
-        total += float(r @ edge.information @ r)
-    for pe in graph.point_edges:
-        x, y, yaw = poses[pe.a]
-        c, s = np.cos(yaw), np.sin(yaw)
-        d = points[pe.b] - np.array([x, y])
-        r = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]]) - np.asarray(pe.measurement)
-        total += float(r @ pe.information @ r)
-    return total
+    """Chi-square of the plain graph (semslam's factors for the prior, odometry, landmark
+    edges and, if given, the closures without any kernel) at a solution; the same for both
+    solvers."""
+    fg, _ = plain_graph(graph)
+    for edge in closures or []:
+        fg.add(between_factor(edge))
+    solution = gtsam.Values()
+    for vid, (x, y, yaw) in poses.items():
+        solution.insert(int(vid), gtsam.Pose2(float(x), float(y), float(yaw)))
+    for pid, point in points.items():
+        solution.insert(int(pid), np.asarray(point, dtype=float))
+    return 2.0 * fg.error(solution)
 
 
 def rmse_between(a: dict, b: dict) -> float:

@@ -49,8 +49,12 @@ if str(REPO) not in sys.path:
 
 from semslam.chi2 import chi2_quantile  # noqa: E402
 from semslam.io.g2o import PoseGraph2D, read_g2o  # noqa: E402
-from semslam.mapping.g2o_factors import between_factor, null_components  # noqa: E402
-from semslam.mapping.pose_graph import FIX_SIGMA, optimize_pose_graph  # noqa: E402
+from semslam.mapping.g2o_factors import between_factor  # noqa: E402
+from semslam.mapping.pose_graph import (  # noqa: E402
+    optimize_pose_graph,
+    plain_graph,
+    single_measurements,
+)
 
 DEFAULT_ROOT = REPO.parent / "shared" / "benchmarks" / "robust-backend" / "manhattan"
 CLEAN = "manhattanOlson3500.g2o"
@@ -131,36 +135,14 @@ class BaselineResult:
 
 def solve_baseline(graph: PoseGraph2D, method: str) -> BaselineResult:
     """One of :data:`BASELINES` on a graph whose mixtures are (measurement, null) pairs."""
-    order = sorted(graph.vertices)
-    fixed = [v for v in graph.fixed if v in graph.vertices] or [order[0]]
-    fg = gtsam.NonlinearFactorGraph()
-    for vid in fixed:
-        fg.add(
-            gtsam.PriorFactorPose2(
-                vid,
-                gtsam.Pose2(*graph.vertices[vid]),
-                gtsam.noiseModel.Isotropic.Sigma(3, FIX_SIGMA),
-            )
-        )
-    for e in graph.edges:
-        fg.add(between_factor(e))
+    fg, values = plain_graph(graph)
     known_inliers = list(range(fg.size()))
-    closures = []
-    for mix in graph.mixtures:
-        real = [
-            c.edge for c, null in zip(mix.components, null_components(mix), strict=True) if not null
-        ]
-        if len(real) != 1:
-            raise ValueError(f"{method}: a mixture with {len(real)} non-null components")
-        closures.append(real[0])
+    closures = single_measurements(graph)
     kernel = BASELINES[method]
     for e in closures:
         gaussian = gtsam.noiseModel.Gaussian.Information(e.information)
         noise = gaussian if kernel is None else gtsam.noiseModel.Robust.Create(kernel(), gaussian)
         fg.add(between_factor(e, noise))
-    values = gtsam.Values()
-    for vid, p in graph.vertices.items():
-        values.insert(vid, gtsam.Pose2(*p))
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(200)
     if kernel is None:
@@ -178,7 +160,9 @@ def solve_baseline(graph: PoseGraph2D, method: str) -> BaselineResult:
         iterations = optimizer.iterations()
         gate = chi2_quantile(BASELINE_ACCEPT_PROBABILITY, 3)
         accepted = np.array([2.0 * between_factor(e).error(result) <= gate for e in closures])
-    poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(v) for v in order)])
+    poses = np.array(
+        [[p.x(), p.y(), p.theta()] for p in (result.atPose2(v) for v in sorted(graph.vertices))]
+    )
     return BaselineResult(poses, accepted, iterations)
 
 

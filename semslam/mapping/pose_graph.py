@@ -83,7 +83,7 @@ import math
 import re
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -437,18 +437,41 @@ def _least_squares(problem: _Problem, max_iterations: int, start: float) -> Pose
     )
 
 
+def single_measurements(graph: PoseGraph2D) -> list[Edge2D]:
+    """Each mixture's one measurement component (its nulls dropped), in file order: what a
+    robust kernel (``robust="dcs"``, the baselines of ``tools/bench_robust_backend.py``)
+    takes in place of the mixture.
+
+    Raises:
+        MappingError: a mixture with no or several measurement components.
+    """
+    return _single_measurements([CompiledMixture(m) for m in graph.mixtures])
+
+
+def _single_measurements(mixtures: Sequence[CompiledMixture]) -> list[Edge2D]:
+    edges = []
+    for index, mix in enumerate(mixtures):
+        if len(mix.real) != 1:
+            raise MappingError(
+                f"a robust kernel takes one measurement per mixture (and its null); mixture "
+                f"{index} ({mix.mixture.a} -> {mix.mixture.b}) has {len(mix.real)}: use 'maxmix'"
+            )
+        edges.append(mix.components[mix.real[0]].edge)
+    return edges
+
+
+def plain_graph(graph: PoseGraph2D) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The part of every mode that is not a mixture: the priors on the fixed poses, the plain
+    and landmark edges; and the file's vertices and points as values."""
+    problem = _problem(replace(graph, mixtures=[]))
+    return _base_factors(problem), _file_values(problem)
+
+
 def _dcs(problem: _Problem, phi: float, probability: float, max_iterations: int, start: float):
     """Dynamic covariance scaling on each mixture's one measurement component."""
     fg = _base_factors(problem)
-    edges = []
-    for index, mix in enumerate(problem.mixtures):
-        if len(mix.real) != 1:
-            raise MappingError(
-                f"robust 'dcs' takes one measurement per mixture (and its null); mixture "
-                f"{index} ({mix.mixture.a} -> {mix.mixture.b}) has {len(mix.real)}: use 'maxmix'"
-            )
-        edge = mix.components[mix.real[0]].edge
-        edges.append(edge)
+    edges = _single_measurements(problem.mixtures)
+    for edge in edges:
         gaussian = gtsam.noiseModel.Gaussian.Information(edge.information)
         kernel = gtsam.noiseModel.mEstimator.DCS.Create(phi)
         fg.add(between_factor(edge, gtsam.noiseModel.Robust.Create(kernel, gaussian)))

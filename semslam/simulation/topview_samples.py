@@ -64,10 +64,8 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
     cross = None  # no draw when crosses are off: the older variations' worlds stay as they were
     if variation.cross_share > 0 and rng.random() < variation.cross_share:
         cross = rng.uniform(*variation.cross_length)
-    faint = None  # likewise
-    if variation.faint_share > 0 and rng.random() < variation.faint_share:
+    if variation.faint_share > 0 and rng.random() < variation.faint_share:  # likewise
         faint = rng.uniform(*variation.faint_mix)
-    if faint is not None:
         colour = tuple(int(round(c + (128.0 - c) * faint)) for c in world.line_colour)
         world = replace(world, line_colour=colour)
     if width is None and stub is None and cross is None:

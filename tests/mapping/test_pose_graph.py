@@ -25,6 +25,8 @@ from semslam.mapping.pose_graph import (
     innovation_chi2,
     leave_out_chi2,
     optimize_pose_graph,
+    plain_graph,
+    single_measurements,
 )
 from semslam.pipeline.optimize import optimize_g2o_file
 
@@ -220,9 +222,14 @@ def test_dcs_down_weights_the_wrong_closures_and_refuses_several_hypotheses():
     # clean solution, not on it, and some of them fail the chi2 test there
     assert 1e-3 < _rmse(dcs.poses, ref) < 0.05
     assert _rmse(optimize_pose_graph(g, "none").poses, ref) > 5.0
+    assert single_measurements(g) == [m.components[0].edge for m in g.mixtures]
+    fg, values = plain_graph(g)  # the prior on pose 0 and the odometry, no closure
+    assert (fg.size(), values.size()) == (1 + len(g.edges), len(g.vertices))
     g.mixtures, _ = _multimodal(g)
     with pytest.raises(MappingError, match=r"mixture 0 \(.*\) has 2: use 'maxmix'"):
         optimize_pose_graph(g, "dcs")
+    with pytest.raises(MappingError, match="use 'maxmix'"):
+        single_measurements(g)
 
 
 def _multimodal(g):
