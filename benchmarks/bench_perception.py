@@ -269,8 +269,9 @@ def main() -> None:
                         help="the marking-point grid alone, without the verifier's second look")
     parser.add_argument("--no-entrance-check", action="store_true",
                         help="keep the points with no entrance line across their separator")
-    parser.add_argument("--verifier", type=Path, default=None,
-                        help="another verifier ONNX file (default: the shipped one)")
+    parser.add_argument("--verifier", type=Path, nargs="+", default=None,
+                        help="other verifier ONNX files, their verdicts averaged (default: "
+                        "the shipped pair)")
     parser.add_argument("--no-mirror-look", action="store_true",
                         help="no second, mirrored look at the candidates the verifier is "
                         "unsure of (PointVerifier.mirror_look)")

@@ -35,6 +35,10 @@ Example (the shipped file; ``models/point_verifier.md``)::
     PYTHONPATH=. python tools/train_point_verifier.py --stage evaluate \
         --out semslam/models/point_verifier.onnx
 
+The second shipped file (``models/point_verifier_turned.md``) is the same recipe with
+``--wide-turn-deg 45`` at both stages (a third patch per training candidate, turned by up to
+45 deg, as the grid turns some real candidates) and ``--minutes 40``.
+
 ``--init-onnx`` fine-tunes an exported file (its batch norms frozen: ``onnx_weights.py``);
 the set ``cross`` holds worlds whose T junctions' separators cross the entrance line.
 
@@ -74,14 +78,14 @@ CHUNK = 20  # worlds per training shard; an evaluation set is one shard, so that
 # ----------------------------------------------------------------------------- mining
 
 
-def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
+def _mine_shard(job: tuple[str, list[int], int, int, bool, float, str]) -> str:
     from semslam.evaluation.detection_metrics import match_points
     from semslam.perception.marking_points import FLOAT_MODELS, MarkingPointDetector
     from semslam.perception.onnx_model import model_path
     from semslam.perception.point_verifier import crop_point_patches
     from semslam.simulation.topview_samples import PaintVariation, sample_topviews
 
-    name, seeds, per_world, seed, jitter, path = job
+    name, seeds, per_world, seed, jitter, wide_turn_deg, path = job
     paint = (PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=1.0)
              if name in CROSSED else None)
     if os.path.exists(path):
@@ -127,6 +131,9 @@ def _mine_shard(job: tuple[str, list[int], int, int, bool, str]) -> str:
             shift = np.clip(rng.normal(0.0, 1.5, uv.shape), -3, 3)
             turn = np.clip(rng.normal(0.0, math.radians(4), len(dirs)), -0.14, 0.14)
             copies.append((uv + shift, dirs + turn))
+            if wide_turn_deg > 0:  # as the grid turns some real candidates, 15-40 deg off
+                wide = rng.uniform(-1.0, 1.0, len(dirs)) * math.radians(wide_turn_deg)
+                copies.append((uv + shift, dirs + wide))
         target_pts = lpts[~locc][np.maximum(near_label, 0)] if (~locc).any() else uv
         target_dir = ldir[~locc][np.maximum(near_label, 0)] if (~locc).any() else dirs
         for c, (u, d) in enumerate(copies):
@@ -181,29 +188,31 @@ def refinement_target(uv: np.ndarray, dirs: np.ndarray, to_uv: np.ndarray,
     return np.stack([along_right, along_up, np.cos(turn), np.sin(turn)], 1).astype(np.float32)
 
 
-def _jobs(name: str, cache: Path) -> list[tuple]:
+def _jobs(name: str, cache: Path, wide_turn_deg: float = 0.0) -> list[tuple]:
     worlds, per_world, seed, jitter = SETS[name]
     worlds = list(worlds)
     chunk = CHUNK if jitter else len(worlds)
+    wide = wide_turn_deg if jitter else 0.0
+    tag = f"_wide{wide:g}" if wide > 0 else ""
     return [
-        (name, worlds[k : k + chunk], per_world, seed + k, jitter,
-         str(cache / f"pv_{name}_{seed}_{per_world}_{worlds[k]:05d}_{chunk}.npz"))
+        (name, worlds[k : k + chunk], per_world, seed + k, jitter, wide,
+         str(cache / f"pv_{name}_{seed}_{per_world}_{worlds[k]:05d}_{chunk}{tag}.npz"))
         for k in range(0, len(worlds), chunk)
     ]
 
 
-def mine(names: list[str], cache: Path, workers: int) -> None:
+def mine(names: list[str], cache: Path, workers: int, wide_turn_deg: float = 0.0) -> None:
     cache.mkdir(parents=True, exist_ok=True)
-    jobs = [job for name in names for job in _jobs(name, cache)]
+    jobs = [job for name in names for job in _jobs(name, cache, wide_turn_deg)]
     t0 = time.time()
     with mp.get_context("spawn").Pool(workers) as pool:
         for n, _ in enumerate(pool.imap_unordered(_mine_shard, jobs), 1):
             print(f"mined {n}/{len(jobs)} shards {time.time() - t0:.0f} s", flush=True)
 
 
-def load(name: str, cache: Path) -> dict[str, np.ndarray]:
+def load(name: str, cache: Path, wide_turn_deg: float = 0.0) -> dict[str, np.ndarray]:
     """A mined set; views renumbered across shards."""
-    parts = [np.load(job[-1]) for job in _jobs(name, cache)]
+    parts = [np.load(job[-1]) for job in _jobs(name, cache, wide_turn_deg)]
     out: dict[str, list] = {k: [] for k in parts[0].files}
     views = 0
     for p in parts:
@@ -423,7 +432,7 @@ def train(args: argparse.Namespace) -> None:
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    parts = [load(name, args.cache) for name in args.train_sets.split(",")]
+    parts = [load(name, args.cache, args.wide_turn_deg) for name in args.train_sets.split(",")]
     data = {k: np.concatenate([p[k] for p in parts]) for k in ("patches", "y_near", "target")}
     keep = data["y_near"] >= 0
     patches, y = data["patches"][keep], data["y_near"][keep].astype(np.float32)
@@ -592,13 +601,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init-onnx", type=Path, default=None,
                    help="train: fine-tune this exported file; its batch norms stay frozen")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--wide-turn-deg", type=float, default=0.0,
+                   help="mine and train: a third patch per training candidate, turned by up "
+                   "to this many degrees either way (the shipped file: 0, none)")
     p.add_argument("--scene-augment", action=argparse.BooleanOptionalAction, default=False,
                    help="train: also paving joints, hard shadows and stitching seams")
     p.add_argument("--line-end-negatives", type=float, default=0.0,
                    help="train: this share of the positives made bare line ends (negatives)")
     args = p.parse_args(argv)
     if args.stage == "mine":
-        mine(args.sets.split(","), args.cache, args.workers)
+        mine(args.sets.split(","), args.cache, args.workers, args.wide_turn_deg)
     elif args.stage == "train":
         train(args)
     else:

@@ -209,7 +209,8 @@ class MarkingPointDetector:
         threshold: minimum confidence of a point; default :data:`DEFAULT_THRESHOLD` with
             the verifier, :data:`GRID_THRESHOLD` without.
         verify: give each candidate the verifier's second look.
-        verifier_path: the verifier's ONNX file; default the shipped one.
+        verifier_path: the verifier's ONNX file, or several whose verdicts are averaged;
+            default the shipped pair.
         check_entrance: drop the points with no entrance line across their separator
             (:func:`semslam.perception.entrance_paint.bare_line_ends`).
 
@@ -223,7 +224,7 @@ class MarkingPointDetector:
         model_path: str | os.PathLike[str] | list | tuple | None = None,
         threshold: float | None = None,
         verify: bool = True,
-        verifier_path: str | os.PathLike[str] | None = None,
+        verifier_path: str | os.PathLike[str] | list | tuple | None = None,
         check_entrance: bool = True,
     ) -> None:
         self.check_entrance = check_entrance

@@ -13,11 +13,13 @@ the candidate, and where exactly: the move to it and the turn to its direction.
 
 Patch: :data:`PATCH_PX` square, uint8 BGR, covering :data:`SPAN_PX` top-view pixels
 (1.6 m in a ps2.0 view) centred on the point; pixels outside the view are black, as the
-ego box is. The model (``models/point_verifier.onnx``, trained by
-``tools/train_point_verifier.py`` on the shipped marking-point pair's candidates in
-simulated views; see ``models/point_verifier.md``) takes ``(N, PATCH_PX, PATCH_PX, 3)``
-uint8 and returns ``(N, 5)``: the probability, the move along the patch's right and up in
-top-view pixels, and the cosine and sine of the turn (:func:`refined`).
+ego box is. A model takes ``(N, PATCH_PX, PATCH_PX, 3)`` uint8 and returns ``(N, 5)``:
+the probability, the move along the patch's right and up in top-view pixels, and the cosine
+and sine of the turn (:func:`refined`). Two are shipped (:data:`DEFAULT_MODELS`, both
+trained by ``tools/train_point_verifier.py`` on the shipped marking-point pair's candidates
+in simulated views; see ``models/point_verifier.md``), and the verifier returns the mean of
+their verdicts: the second saw candidates turned up to 45 deg off their separator in
+training, as the grid turns some real ones, and the first did not.
 """
 
 from __future__ import annotations
@@ -39,7 +41,11 @@ PATCH_PX = 64
 SPAN_PX = 96.0
 """Top-view pixels one patch side covers (1.6 m at ps2.0's 60 px per metre)."""
 
-DEFAULT_MODEL = "point_verifier.onnx"
+DEFAULT_MODELS = ("point_verifier.onnx", "point_verifier_turned.onnx")
+"""The shipped verifiers, whose verdicts are averaged: the first trained on candidates turned
+by up to 8 deg, the second (``--wide-turn-deg 45``) also on candidates turned by up to
+45 deg. Either alone is as good on simulated views; their mean keeps more real points and
+lets fewer false ones through (``models/point_verifier.md``)."""
 
 MIRROR_LOOK_BAND = (0.05, 0.95)
 """Probabilities of a first look that get a second, mirrored one (:meth:`PointVerifier.score`)."""
@@ -112,41 +118,64 @@ def refined(uv: np.ndarray, directions: np.ndarray, verdicts: np.ndarray
     return moved, turned
 
 
+def _mean_verdict(verdicts: list[np.ndarray]) -> np.ndarray:
+    """The mean of several (N, 5) verdicts of the same patches, the turn's cosine and sine
+    made a unit vector again."""
+    mean = np.mean(verdicts, axis=0)
+    mean[:, 3:] /= np.maximum(np.hypot(mean[:, 3], mean[:, 4]), 1e-9)[:, None]
+    return mean
+
+
 class PointVerifier:
-    """The verifier CNN on one onnxruntime thread.
+    """The verifier CNNs on one onnxruntime thread: the mean verdict of one or more models.
 
     Args:
-        model_path: the ONNX file; default the shipped one.
+        model_path: an ONNX file, or several whose verdicts are averaged; default the
+            shipped pair :data:`DEFAULT_MODELS`.
         mirror_look: give the candidates of an uncertain first verdict a second look at
             their patch mirrored left-right (:meth:`score`).
 
     Raises:
-        PerceptionError: the model is missing or not loadable, or does not take
-            ``(N, PATCH_PX, PATCH_PX, 3)`` uint8 and return ``(N, 5)``.
+        PerceptionError: no model is given, or one is missing or not loadable, or does
+            not take ``(N, PATCH_PX, PATCH_PX, 3)`` uint8 and return ``(N, 5)``.
     """
 
     def __init__(
-        self, model_path: str | os.PathLike[str] | None = None, mirror_look: bool = True
+        self,
+        model_path: str | os.PathLike[str] | list | tuple | None = None,
+        mirror_look: bool = True,
     ) -> None:
         self.mirror_look = mirror_look
-        self.path = Path(model_path) if model_path else onnx_model.model_path(DEFAULT_MODEL)
-        self._session = onnx_model.load_session(self.path)
-        inp = self._session.get_inputs()[0]
-        out = self._session.get_outputs()[0]
-        if (
-            list(inp.shape)[1:] != [PATCH_PX, PATCH_PX, 3]
-            or inp.type != "tensor(uint8)"
-            or len(out.shape) != 2
-            or out.shape[1] != 5
-        ):
-            raise PerceptionError(
-                f"{self.path}: expected input (N, {PATCH_PX}, {PATCH_PX}, 3) uint8 and output "
-                f"(N, 5), got {inp.shape} {inp.type} and {out.shape}"
-            )
-        self._input = inp.name
+        if model_path is None:
+            self.paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
+        elif isinstance(model_path, (list, tuple)):
+            self.paths = [Path(p) for p in model_path]
+        else:
+            self.paths = [Path(model_path)]
+        if not self.paths:
+            raise PerceptionError("point verifier: no model given")
+        self._sessions = [onnx_model.load_session(p) for p in self.paths]
+        for path, session in zip(self.paths, self._sessions, strict=True):
+            inp, out = session.get_inputs()[0], session.get_outputs()[0]
+            if (
+                list(inp.shape)[1:] != [PATCH_PX, PATCH_PX, 3]
+                or inp.type != "tensor(uint8)"
+                or len(out.shape) != 2
+                or out.shape[1] != 5
+            ):
+                raise PerceptionError(
+                    f"{path}: expected input (N, {PATCH_PX}, {PATCH_PX}, 3) uint8 and output "
+                    f"(N, 5), got {inp.shape} {inp.type} and {out.shape}"
+                )
+        self._inputs = [session.get_inputs()[0].name for session in self._sessions]
 
     def _run(self, x: np.ndarray) -> np.ndarray:
-        out = self._session.run(None, {self._input: x})[0].astype(float).reshape(-1, 5)
+        """The models' mean verdict (:meth:`verdicts`) on the patches ``x``."""
+        outs = [
+            session.run(None, {name: x})[0].astype(float).reshape(-1, 5)
+            for session, name in zip(self._sessions, self._inputs, strict=True)
+        ]
+        out = outs[0] if len(outs) == 1 else _mean_verdict(outs)
         out[:, 0] = np.clip(out[:, 0], 0.0, 1.0)
         return out
 
@@ -167,9 +196,7 @@ class PointVerifier:
         again = np.nonzero((out[:, 0] >= lo) & (out[:, 0] <= hi))[0]
         if len(again):
             mirrored = self._run(np.ascontiguousarray(x[again, :, ::-1])) * _MIRRORED_SIGN
-            mean = 0.5 * (out[again] + mirrored)
-            mean[:, 3:] /= np.maximum(np.hypot(mean[:, 3], mean[:, 4]), 1e-9)[:, None]
-            out[again] = mean
+            out[again] = _mean_verdict([out[again], mirrored])
         return out
 
     def verdicts(self, patches: np.ndarray) -> np.ndarray:
@@ -213,7 +240,7 @@ class PointVerifier:
 
 
 __all__ = [
-    "DEFAULT_MODEL",
+    "DEFAULT_MODELS",
     "MIRROR_LOOK_BAND",
     "PATCH_PX",
     "SPAN_PX",

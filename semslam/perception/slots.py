@@ -325,7 +325,7 @@ class SlotDetector:
         spec: TopviewSpec | None = None,
         rules: SlotRules | None = None,
         verify: bool = True,
-        verifier_path: str | os.PathLike[str] | None = None,
+        verifier_path: str | os.PathLike[str] | list | tuple | None = None,
         check_entrance: bool = True,
     ) -> None:
         self.points = MarkingPointDetector(

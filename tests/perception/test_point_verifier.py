@@ -20,7 +20,7 @@ from semslam.perception.marking_points import (
 )
 from semslam.perception.onnx_model import model_path
 from semslam.perception.point_verifier import (
-    DEFAULT_MODEL,
+    DEFAULT_MODELS,
     MIRROR_LOOK_BAND,
     PATCH_PX,
     SPAN_PX,
@@ -69,8 +69,10 @@ def verifier() -> PointVerifier:
 
 
 def test_shipped_model_contract(verifier):
-    assert model_path(DEFAULT_MODEL).is_file()
-    assert model_path(DEFAULT_MODEL).stat().st_size < 10e6
+    assert len(DEFAULT_MODELS) == 2
+    for name in DEFAULT_MODELS:
+        assert model_path(name).is_file()
+        assert model_path(name).stat().st_size < 10e6
     rng = np.random.default_rng(3)
     patches = rng.integers(0, 256, (7, PATCH_PX, PATCH_PX, 3), dtype=np.uint8)
     v = verifier.verdicts(patches)
@@ -80,6 +82,23 @@ def test_shipped_model_contract(verifier):
     one_by_one = np.concatenate([verifier.verdicts(patches[k : k + 1]) for k in range(7)])
     np.testing.assert_allclose(v, one_by_one, atol=1e-5)  # the halves are the whole
     assert verifier.verdicts(np.zeros((0, PATCH_PX, PATCH_PX, 3), np.uint8)).shape == (0, 5)
+
+
+def test_the_shipped_pair_gives_its_models_mean_verdict(verifier):
+    """Two models' verdicts are averaged, the turn made a unit vector again; one model
+    given alone is that model."""
+    rng = np.random.default_rng(4)
+    patches = rng.integers(0, 256, (5, PATCH_PX, PATCH_PX, 3), dtype=np.uint8)
+    first, second = (PointVerifier(model_path(name), mirror_look=False).score(patches)
+                     for name in DEFAULT_MODELS)
+    assert not np.allclose(first, second, atol=1e-3)  # two different models
+    mean = 0.5 * (first + second)
+    mean[:, 3:] /= np.hypot(mean[:, 3], mean[:, 4])[:, None]
+    pair = PointVerifier(mirror_look=False)
+    assert [p.name for p in pair.paths] == list(DEFAULT_MODELS)
+    np.testing.assert_allclose(pair.score(patches), mean, atol=1e-6)
+    with pytest.raises(PerceptionError, match="no model"):
+        PointVerifier([])
 
 
 def test_refined_moves_along_the_patch_axes_and_turns():
