@@ -17,9 +17,10 @@ ego box is. A model takes ``(N, PATCH_PX, PATCH_PX, 3)`` uint8 and returns ``(N,
 the probability, the move along the patch's right and up in top-view pixels, and the cosine
 and sine of the turn (:func:`refined`). Two are shipped (:data:`DEFAULT_MODELS`, both
 trained by ``tools/train_point_verifier.py`` on the shipped marking-point pair's candidates
-in simulated views; see ``models/point_verifier.md``), and the verifier returns the mean of
-their verdicts: the second saw candidates turned up to 45 deg off their separator in
-training, as the grid turns some real ones, and the first did not.
+in simulated views; see ``models/point_verifier.md`` and ``point_verifier_turned.md``),
+and the verifier returns the mean of their verdicts: the second saw candidates turned up to
+45 deg off their separator in training, as the grid turns some real ones, and the first
+did not.
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ SPAN_PX = 96.0
 DEFAULT_MODELS = ("point_verifier.onnx", "point_verifier_turned.onnx")
 """The shipped verifiers, whose verdicts are averaged: the first trained on candidates turned
 by up to 8 deg, the second (``--wide-turn-deg 45``) also on candidates turned by up to
-45 deg. Either alone is as good on simulated views; their mean keeps more real points and
-lets fewer false ones through (``models/point_verifier.md``)."""
+45 deg. Either alone is about as good on simulated views; their mean keeps more real points
+and lets fewer false ones through (``models/point_verifier_turned.md``)."""
 
 MIRROR_LOOK_BAND = (0.05, 0.95)
 """Probabilities of a first look that get a second, mirrored one (:meth:`PointVerifier.score`)."""
