@@ -176,7 +176,7 @@ class PointVerifier:
             session.run(None, {name: x})[0].astype(float).reshape(-1, 5)
             for session, name in zip(self._sessions, self._inputs, strict=True)
         ]
-        out = outs[0] if len(outs) == 1 else _mean_verdict(outs)
+        out = _mean_verdict(outs)
         out[:, 0] = np.clip(out[:, 0], 0.0, 1.0)
         return out
 
