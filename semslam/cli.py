@@ -154,8 +154,10 @@ def demo(
     config: ConfigOption = None,
     progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
 ) -> None:
-    """The main job in one command: simulate two drives through one garage, perceive their
-    images, map the first, localize the second with no initial pose, evaluate, report."""
+    """The main job in one command: two simulated drives, mapped and localized, evaluated.
+
+    Simulates two drives through one garage, perceives their images, maps the first,
+    localizes the second with no initial pose, evaluates both and writes a report."""
     from semslam.config import load_config
     from semslam.pipeline.demo import run_demo
     from semslam.reporting import print_metrics
@@ -282,8 +284,9 @@ def tags(
     ] = 1.0,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """AprilTag poses in images: corners, position and rotation in the camera frame,
-    ambiguity and covariance (--json: {"images": [{"image", "detections": [...]}]})."""
+    """AprilTag poses in images: corners, pose in the camera frame, covariance.
+
+    Also the pose's ambiguity (--json: {"images": [{"image", "detections": [...]}]})."""
     from semslam.pipeline.tags import parse_numbers, tags_in_images
     from semslam.reporting import print_metrics
 
@@ -318,9 +321,10 @@ def detect(
     lines: Annotated[bool, typer.Option(help="Also find painted lines (Houben).")] = True,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Marking points, slots with their painted IDs, and painted lines in ps2.0 top views
-    (600 x 600 px, 10 m, car in the middle; --json: {"images": [{"image", "points",
-    "slots", "markings"}]})."""
+    """Marking points, slots with their painted IDs, and painted lines in top views.
+
+    ps2.0 top views: 600 x 600 px, 10 m, car in the middle (--json: {"images": [{"image",
+    "points", "slots", "markings"}]})."""
     from semslam.pipeline.detect import detect_files
     from semslam.reporting import print_metrics
 
@@ -494,8 +498,10 @@ def evaluate_markings(
     tolerance: Annotated[float, typer.Option(help="Matched within this, metres.")] = 0.3,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Painted lines against a vector map, both ways: end-point distances (median, p95) from
-    the vector map to the map (is everything there?) and back (is what was mapped real?)."""
+    """Painted lines against a vector map, both ways: end-point distances (median, p95).
+
+    From the vector map to the map (is everything there?) and back (is what was mapped
+    real?)."""
     from semslam.pipeline.evaluate import evaluate_markings_files
     from semslam.reporting import print_metrics
 
@@ -533,9 +539,10 @@ def accuracy(
     threshold: Annotated[float, typer.Option(help="Accuracy target, m (worst stretches).")] = 0.2,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Predicted accuracy from the map alone (Hofmann): single-frame (A^T P A)^-1 on a grid
-    and, along a route, filtered with an odometry grade or as semslam's localizer would;
-    the worst stretches."""
+    """Predicted accuracy from the map alone (Hofmann), on a grid and along a route.
+
+    Single-frame (A^T P A)^-1 on a grid and, along a route, filtered with an odometry
+    grade or as semslam's localizer would; the worst stretches."""
     from semslam.pipeline.accuracy import predicted_accuracy
     from semslam.reporting import print_metrics
 
@@ -581,8 +588,9 @@ def plan_tags_command(
     ] = 20,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Propose where to put COUNT tags (greedy on the predicted worst sigma along the
-    route) and show how accuracy changes with their number, against evenly spread and
+    """Where to put COUNT tags, and how accuracy changes with their number.
+
+    Greedy on the predicted worst sigma along the route, against evenly spread and
     randomly placed tags."""
     from semslam.pipeline.plan_tags import plan_tags
     from semslam.reporting import print_metrics
@@ -618,8 +626,9 @@ def bench(
     config: ConfigOption = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Per-stage timings on a simulated drive (medians, ms) and mapping time against driving
-    time: every speed target in one run."""
+    """Every speed target in one run: stage timings and mapping time against driving time.
+
+    The stages run on a simulated drive; mapping time is set against its driving time."""
     from semslam.config import load_config
     from semslam.pipeline.bench import run_bench
     from semslam.reporting import print_metrics
@@ -648,10 +657,11 @@ def import_garage_bev_command(
     every: Annotated[int, typer.Option(help="Use every n-th mask (quick looks).")] = 1,
     progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
 ) -> None:
-    """A real drive of bird's-eye semantic masks + odometry (3D-SMLoc's garage) as a drive
-    folder: odometry, line observations from the slot-line masks (cached), the hand-made
-    vector map, and the mapping settings for it (map with `--observations cached
-    --config OUT/config.json`)."""
+    """A real drive of bird's-eye masks + odometry (3D-SMLoc's garage) as a drive folder.
+
+    Odometry, line observations from the slot-line masks (cached), the hand-made vector
+    map, and the mapping settings for it (map with `--observations cached --config
+    OUT/config.json`)."""
     from dataclasses import asdict
 
     from semslam.pipeline.import_bev import import_garage_bev

@@ -35,6 +35,22 @@ def test_version():
     assert __version__ in result.stdout
 
 
+def _commands(typer_app):
+    for command in typer_app.registered_commands:
+        yield command.callback
+    for group in typer_app.registered_groups:
+        yield from _commands(group.typer_instance)
+
+
+def test_every_command_summary_is_one_line():
+    """The command lists print a docstring's first paragraph with its line breaks kept."""
+    callbacks = list(_commands(app))
+    assert len(callbacks) >= 15
+    for callback in callbacks:
+        summary = callback.__doc__.strip().split("\n\n")[0]
+        assert "\n" not in summary, f"{callback.__name__}: {summary!r}"
+
+
 def test_dump_config_is_json_with_defaults_and_env_overrides():
     result = _run("dump-config", env={"SEMSLAM_SIMULATION__DRIVE__MAX_SPEED": "2.5"})
     assert result.exit_code == 0
