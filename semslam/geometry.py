@@ -18,10 +18,13 @@ FloatArray = NDArray[np.float64]
 
 def wrap_angle(angle: ArrayLike) -> FloatArray | float:
     """Wrap angles (radians) to (-pi, pi]; scalars stay scalars."""
+    # an angle an ulp above pi rounds the modulo up to 2 pi, hence the check for -pi
     if isinstance(angle, float):  # the filter's hot path: the same arithmetic, no array
-        return math.pi - (math.pi - float(angle)) % (2.0 * math.pi)
+        wrapped = math.pi - (math.pi - float(angle)) % (2.0 * math.pi)
+        return wrapped if wrapped > -math.pi else math.pi
     a = np.asarray(angle, dtype=float)
     wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    wrapped = np.where(wrapped > -np.pi, wrapped, np.pi)
     if wrapped.ndim == 0:
         return float(wrapped)
     return wrapped
@@ -36,6 +39,22 @@ def rotation(yaw: float) -> FloatArray:
     """2x2 rotation matrix for ``yaw`` radians."""
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, -s], [s, c]])
+
+
+def rotate_pose_covariance(covariance: ArrayLike, yaw: float) -> FloatArray:
+    """A (3, 3) pose covariance ``(x, y, yaw)`` with its position axes turned by ``yaw``:
+    ``J C J^T``, ``J = blockdiag(R(yaw), 1)``.
+
+    ``yaw`` = a pose's own yaw turns a covariance given along that pose's axes (gtsam's and
+    g2o's tangent space of a ``Pose2``) into its parent's; ``-yaw`` the other way. A relative
+    pose ``aTb`` measured with covariance ``C`` in a's axes is what gtsam's ``BetweenFactor``
+    and g2o's ``EDGE_SE2`` compare in b's axes: their noise is ``rotate_pose_covariance(C,
+    -aTb.yaw)``.
+    """
+    J = np.eye(3)
+    J[:2, :2] = rotation(yaw)
+    C = J @ np.asarray(covariance, dtype=float) @ J.T
+    return 0.5 * (C + C.T)
 
 
 def compose(aTb: ArrayLike, bTc: ArrayLike) -> FloatArray:

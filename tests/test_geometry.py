@@ -11,6 +11,7 @@ from semslam.geometry import (
     inverse,
     inverse_transform_points,
     quaternion_to_yaw,
+    rotate_pose_covariance,
     rotation_variance,
     transform_points,
     wrap_angle,
@@ -116,3 +117,43 @@ def test_wrap_angle_of_a_float_is_the_array_arithmetic():
     one_by_one = [wrap_angle(float(a)) for a in angles]
     assert all(type(w) is float for w in one_by_one)
     np.testing.assert_array_equal(one_by_one, wrap_angle(angles))
+
+
+def test_wrap_angle_keeps_an_angle_an_ulp_above_pi_at_pi():
+    above = math.nextafter(math.pi, 4.0)
+    assert wrap_angle(above) == math.pi
+    assert np.all(wrap_angle(np.array([above, -math.pi])) == math.pi)
+
+
+def test_a_pose_covariance_turned_is_the_spread_of_turned_samples():
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(3, 3))
+    C = A @ A.T * 1e-2
+    yaw = 2.2
+    samples = rng.multivariate_normal(np.zeros(3), C, size=200_000)
+    turned = np.column_stack([samples[:, :2] @ np.array(
+        [[math.cos(yaw), math.sin(yaw)], [-math.sin(yaw), math.cos(yaw)]]), samples[:, 2]])
+    np.testing.assert_allclose(rotate_pose_covariance(C, yaw), np.cov(turned.T), atol=3e-4)
+    np.testing.assert_allclose(rotate_pose_covariance(rotate_pose_covariance(C, yaw), -yaw), C,
+                               atol=1e-15)
+
+
+def test_the_between_noise_of_a_relative_pose_measured_along_its_start():
+    """gtsam's BetweenFactorPose2 compares along the end's axes: measurement noise drawn
+    along the start's axes spreads its errors as rotate_pose_covariance(C, -yaw)."""
+    import gtsam
+
+    rng = np.random.default_rng(4)
+    C = np.diag([0.02, 0.001, 0.0004])
+    C[0, 2] = C[2, 0] = 0.0005
+    delta = np.array([1.0, 0.3, 1.1])
+    factor = gtsam.BetweenFactorPose2(1, 2, gtsam.Pose2(*delta), gtsam.noiseModel.Unit.Create(3))
+    values = gtsam.Values()
+    values.insert(1, gtsam.Pose2(0.0, 0.0, 0.0))
+    errors = []
+    for noise in rng.multivariate_normal(np.zeros(3), C, size=20_000):
+        values.update(2, gtsam.Pose2(*(delta + noise))) if values.exists(2) else values.insert(
+            2, gtsam.Pose2(*(delta + noise)))
+        errors.append(factor.unwhitenedError(values))
+    np.testing.assert_allclose(np.cov(np.array(errors).T), rotate_pose_covariance(C, -delta[2]),
+                               atol=6e-4)

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
-from semslam.geometry import FloatArray, rotation
+from semslam.geometry import FloatArray, rotate_pose_covariance
 from semslam.localization.filter import solve_spd
 from semslam.localization.measurements import (
     MarkingMeasurement,
@@ -149,19 +149,17 @@ class LocalMap:
         return out
 
     def _tags(self, frame, pose, P, out: Associations) -> None:
-        Rv = None
         for obs in frame.tags:
             if math.hypot(obs.vTt[0], obs.vTt[1]) > self.cfg.tag_range_limit:
                 continue
             tag = self.tags.get((obs.family, obs.tag_id))
             if tag is None:
                 continue
-            if Rv is None:
-                Rv = rotation(pose[2]).T  # map -> vehicle
             k = self.cfg.map_covariance_scale
-            R = np.array(obs.covariance, dtype=float)
-            R[:2, :2] += k * (Rv @ tag.covariance[:2, :2] @ Rv.T)
-            R[2, 2] += k * tag.covariance[2, 2]
+            # the map tag's covariance along the vehicle's axes, cross terms and all
+            R = np.array(obs.covariance, dtype=float) + k * rotate_pose_covariance(
+                tag.covariance, -pose[2]
+            )
             m = TagMeasurement(np.asarray(obs.vTt, float), R, np.asarray(tag.mTt, float))
             if _d2(m, pose, P) <= self._tag_gate:
                 self._accept(out, "tag", m)

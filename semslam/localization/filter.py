@@ -169,8 +169,7 @@ class CtrvFilter:
             dZ = _residuals(measurements, Z)  # z - Z_i, angles wrapped, (2n + 1, m)
             mean_dZ = w @ dZ  # z - z_hat, the innovation
             E = dZ - mean_dZ  # Z_i - z_hat up to sign
-            dX = X - self.x
-            dX[:, 2] = wrap_angle(dX[:, 2])
+            dX = X - self.x  # the offsets themselves, never wrapped: sum w dX dX^T = P
             S = (E * w[:, None]).T @ E + R
             C = -(dX * w[:, None]).T @ E
             return Innovation(mean_dZ, 0.5 * (S + S.T), C)

@@ -128,12 +128,15 @@ class Localizer:
         """Process one frame; frames must come in time order.
 
         Raises:
-            DriveError: time went back, or the frame is more than one odometry period
-                after the last odometry sample (odometry.csv cut short).
+            DriveError: the frame's time is not a number, time went back, or the frame is
+                before the first odometry sample (where the drive's start pose is) or more
+                than one odometry period after the last (odometry.csv cut short).
         """
+        if not math.isfinite(frame.t):
+            raise DriveError(f"frame time {frame.t}: not a finite number of seconds")
         if self.t is not None and frame.t < self.t:
             raise DriveError(f"frame at {frame.t:.3f} s comes after {self.t:.3f} s: time went back")
-        check_covered(frame.t, self._span)
+        check_covered(frame.t, self._span, start=True)
         if not (self.cfg.use_slots and self.cfg.use_tags):  # switched-off sensors: unseen
             frame = replace(
                 frame,

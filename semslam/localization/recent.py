@@ -28,7 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from semslam.geometry import FloatArray, between, compose, rotation
+from semslam.geometry import FloatArray, between, compose, rotate_pose_covariance, rotation
 from semslam.types import FrameObservations, TagObservation
 
 
@@ -58,7 +58,7 @@ class RecentFrames:
             corners.append(frame_corners @ R.T + nowTv[:2])
             slots.extend(frame.slots)
             for tag in frame.tags:
-                tags[(tag.family, tag.tag_id)] = (nowTv, R, tag)
+                tags[(tag.family, tag.tag_id)] = (nowTv, tag)
         return FrameObservations(
             newest.t,
             tuple(self._merge_slots(np.concatenate(corners), slots)),
@@ -100,7 +100,8 @@ class RecentFrames:
             )
 
 
-def _moved_tag(nowTv: FloatArray, R: FloatArray, tag: TagObservation) -> TagObservation:
-    cov = np.array(tag.covariance, dtype=float)
-    cov[:2, :2] = R @ cov[:2, :2] @ R.T
+def _moved_tag(nowTv: FloatArray, tag: TagObservation) -> TagObservation:
+    """A tag sighting of an earlier frame, moved into the newest frame ``now`` (odometry
+    taken as exact): pose and covariance, cross terms and all."""
+    cov = rotate_pose_covariance(tag.covariance, nowTv[2])
     return replace(tag, vTt=compose(nowTv, tag.vTt), covariance=cov)

@@ -38,7 +38,14 @@ import numpy as np
 
 from semslam.config import MappingConfig
 from semslam.errors import MappingError
-from semslam.geometry import FloatArray, compose, rotation_variance, transform_points, wrap_angle
+from semslam.geometry import (
+    FloatArray,
+    compose,
+    rotate_pose_covariance,
+    rotation_variance,
+    transform_points,
+    wrap_angle,
+)
 from semslam.io.odometry import check_covered, odometry_span
 from semslam.mapping.factors import (
     calibrated_odometry_residual,
@@ -122,7 +129,8 @@ class MappingResult:
     keyframe_poses: FloatArray
     sightings: tuple[Sighting, ...]
     statistics: dict
-    odometry_edges: tuple  # (k-1, k, relative pose (3,) after calibration, covariance (3, 3))
+    odometry_edges: tuple  # (k-1, k, relative pose (3,) after calibration, covariance (3, 3)
+    # along k's axes, as the between error)
     tag_edges: tuple  # (keyframe, tag id, vTt (3,), covariance (3, 3))
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
@@ -251,6 +259,9 @@ class Mapper:
                 )
             return
         delta, cov, J = odometry
+        # odometry_between gives the covariance along k-1's axes; the between error (gtsam's,
+        # g2o's, calibrated_odometry_residual's) is along k's
+        cov = rotate_pose_covariance(cov, -delta[2])
         self.odometry_edges.append((k - 1, k, delta, cov, J))
         noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         if J is None:
@@ -314,7 +325,8 @@ class Mapper:
         key = T(tag.tag_id)
         if not self.graph.has(key):
             self.graph.add_pose(key, compose(pose, tag.vTt))
-        cov = 0.5 * (tag.covariance + tag.covariance.T) + np.eye(3) * 1e-8
+        # the sighting's covariance is along the vehicle's axes, the between error along the tag's
+        cov = rotate_pose_covariance(tag.covariance, -tag.vTt[2]) + np.eye(3) * 1e-8
         self.tag_edges.append((k, tag.tag_id, np.asarray(tag.vTt, dtype=float), cov))
         # trusted, no null hypothesis: on the demo drive a null on tags dropped good image
         # tags (map 0.057 -> 0.071 m); the tag detector drops the ambiguous ones itself
@@ -755,7 +767,9 @@ class Mapper:
                 cov = np.zeros((3, 3))
                 if marginals is not None:
                     try:
-                        cov = marginals.marginalCovariance(T(tag_id))
+                        # gtsam's Pose2 marginal is along the tag's axes, the map's along the map's
+                        marginal = marginals.marginalCovariance(T(tag_id))
+                        cov = rotate_pose_covariance(marginal, mTt[2])
                     except RuntimeError:  # as for slots: the spread of its sightings
                         poses = np.array(info["poses"])
                         cov = np.cov(poses.T) / len(poses) if len(poses) > 1 else cov

@@ -102,3 +102,26 @@ def test_the_slot_measurement_carries_its_own_linearisation_at_the_pose():
     for got, expected in zip(m.linearise(pose), fresh.linearise(pose), strict=True):
         np.testing.assert_allclose(got, expected, atol=1e-12)
     np.testing.assert_allclose(m.residual(m.predict(pose)[0]), m.linearise(pose)[0], atol=1e-12)
+
+
+def test_a_map_tags_covariance_enters_the_measurement_noise_through_the_measurement():
+    """R of a tag sighting = its own covariance + the map tag's, carried by the first-order
+    derivative of the predicted sighting with respect to the map pose (cross terms too)."""
+    from semslam.localization.measurements import TagMeasurement
+    from semslam.types import Tag, TagObservation
+
+    mTt = np.array([4.0, -2.0, 2.9])
+    C_map = np.array([[4e-4, 0.0, 1.5e-4], [0.0, 1e-4, 0.0], [1.5e-4, 0.0, 1e-4]])
+    pose = np.array([1.0, -1.0, 1.3])
+    seen = TagMeasurement(np.zeros(3), np.eye(3), mTt).predict(pose)[0]
+    obs = TagObservation("tag36h11", 3, 0.2, seen, 0.5, np.diag([1e-4, 1e-4, 1e-5]))
+    local = LocalMap(SemanticMap(tags=(Tag("tag36h11", 3, 0.2, mTt, 0.5, C_map),)), CFG)
+    out = local.associate(FrameObservations(0.0, tags=(obs,)), pose, np.eye(3) * 1e-4)
+    J = np.zeros((3, 3))
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1e-6
+        J[:, k] = (TagMeasurement(np.zeros(3), np.eye(3), mTt + e).predict(pose)[0]
+                   - TagMeasurement(np.zeros(3), np.eye(3), mTt - e).predict(pose)[0]) / 2e-6
+    expected = obs.covariance + CFG.map_covariance_scale * J @ C_map @ J.T
+    np.testing.assert_allclose(out.measurements[0].R, expected, atol=1e-10)

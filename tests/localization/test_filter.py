@@ -302,3 +302,20 @@ def test_the_innovation_solves_positive_definite_and_indefinite_systems_alike():
         innovation = Innovation(nu, S, C)
         np.testing.assert_allclose(innovation.nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
         np.testing.assert_allclose(innovation.gain, C @ np.linalg.inv(S), rtol=1e-8, atol=1e-12)
+
+
+def test_a_sigma_point_update_with_a_very_uncertain_heading_stays_positive_definite():
+    """Sigma points more than pi from the mean in yaw (a lost filter): the offsets are not
+    wrapped, so the update's cross-covariance is that of P and the posterior stays positive."""
+    rng = np.random.default_rng(0)
+    m = TagMeasurement(np.array([3.0, 1.0, 0.2]), np.diag([0.05**2, 0.05**2, 0.01**2]),
+                       np.array([5.0, 4.0, 1.0]))
+    for _ in range(20):
+        A = rng.normal(size=(5, 5))
+        P = A @ A.T * 0.5 + np.eye(5) * 1e-6
+        P[2, :] *= 2
+        P[:, 2] *= 2  # yaw sigma 2-5 rad
+        f = CtrvFilter(np.array([0.0, 0.0, rng.uniform(-3, 3), 2.0, 0.1]), P, NOISE)
+        f.apply(f.innovation([m], m.R, "sigma"))
+        eigenvalues = np.linalg.eigvalsh(f.P)
+        assert eigenvalues.min() > -1e-9 * eigenvalues.max()

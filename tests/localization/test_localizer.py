@@ -107,6 +107,22 @@ def test_time_going_backwards_is_refused(sim):
         loc.step(FrameObservations(sim.noisy[2].t))
 
 
+def test_a_frame_time_that_is_not_a_number_is_refused(sim):
+    loc, _ = _run(sim, frames=sim.noisy[:3])
+    with pytest.raises(DriveError, match="not a finite number"):
+        loc.step(FrameObservations(float("nan")))
+
+
+def test_a_frame_before_the_first_odometry_sample_is_refused(sim):
+    """The drive's start pose is the pose at the first odometry sample: a frame before it
+    has no pose to start from (the mapper refuses it too)."""
+    rec = sim.record
+    loc = Localizer(sim.world.to_map(), LocalizationConfig(), rec.t[5:], rec.odo_speed[5:],
+                    rec.odo_yaw_rate[5:], sim.frame_poses[0])
+    with pytest.raises(DriveError, match="before the odometry"):
+        loc.step(FrameObservations(float(rec.t[0])))
+
+
 def test_a_frame_with_only_a_tag_updates_the_filter(sim):
     frame, tag = next((f, t) for f in sim.exact for t in f.tags if np.hypot(*t.vTt[:2]) < 15)
     only_tag = FrameObservations(frame.t, (), (tag,), ())

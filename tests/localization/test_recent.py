@@ -31,3 +31,23 @@ def test_old_frames_leave_the_window():
         recent.add(np.array([0.0, 0.0, 0.0]), _frame(0.1 * i, "B2"))
     (slot,) = recent.merged().slots
     assert 10 <= slot.label_reads <= 11  # the frames within 1 s of the newest
+
+
+def test_a_tag_seen_before_a_turn_moves_with_its_covariance_turned_whole():
+    """The car turns 90 deg left between the sighting and the newest frame: the sighting's
+    pose and its covariance, cross terms too, are the same tag seen from the new pose."""
+    from semslam.geometry import between, compose, rotate_pose_covariance
+    from semslam.types import TagObservation
+
+    cov = np.array([[0.01, 0.0, 0.001], [0.0, 1e-4, 0.0], [0.001, 0.0, 1e-4]])
+    tag = TagObservation("tag36h11", 4, 0.2, np.array([5.0, 1.0, 3.0]), 1.5, cov)
+    recent = RecentFrames(window=5.0)
+    recent.add(np.zeros(3), FrameObservations(0.0, (), (tag,), ()))
+    now = np.array([2.0, 1.0, np.pi / 2])
+    recent.add(now, FrameObservations(1.0, (), (), ()))
+    (moved,) = recent.merged().tags
+    nowTv = between(now, np.zeros(3))
+    np.testing.assert_allclose(moved.vTt, compose(nowTv, tag.vTt), atol=1e-12)
+    np.testing.assert_allclose(moved.covariance, rotate_pose_covariance(cov, -np.pi / 2),
+                               atol=1e-15)
+    assert np.linalg.eigvalsh(moved.covariance).min() > 0
