@@ -97,8 +97,10 @@ def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
 
 
 def quaternion_to_yaw(qx: float, qy: float, qz: float, qw: float) -> float:
-    """Yaw (rotation about +z, radians) of a quaternion; roll and pitch are ignored."""
-    return float(wrap_angle(math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))))
+    """Yaw (rotation about +z, radians) of a quaternion of any length; roll and pitch are
+    ignored."""
+    cos_part = qw * qw + qx * qx - qy * qy - qz * qz  # 1 - 2 (y^2 + z^2) for a unit quaternion
+    return float(wrap_angle(math.atan2(2.0 * (qw * qz + qx * qy), cos_part)))
 
 
 def clip_segment(a: ArrayLike, b: ArrayLike, lo: float, hi: float):

@@ -207,6 +207,24 @@ def test_detect_writes_no_overlay_when_an_image_is_bad(tmp_path):
     assert not (tmp_path / "ov" / "good.png").exists()
 
 
+def test_detect_refuses_two_images_that_would_write_one_overlay(tmp_path):
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        cv2.imwrite(str(tmp_path / folder / "x.png"), np.zeros((600, 600, 3), np.uint8))
+    first, second = tmp_path / "a" / "x.png", tmp_path / "b" / "x.png"
+    result = _run("detect", first, second, "--overlay", tmp_path / "ov", "--no-lines")
+    _fails(result, f"{second}: its overlay would replace that of {first}")
+    assert not (tmp_path / "ov").exists()
+
+
+def test_topview_perception_reads_slots_and_ids_on_its_own_grid():
+    from semslam.perception.topview_perception import TopviewPerception
+    from semslam.rig import TopviewSpec
+
+    spec = TopviewSpec(size_px=500, metres_per_px=0.02)
+    assert TopviewPerception(spec=spec, lines=False).slot_detector.spec == spec
+
+
 def test_detect_names_the_image_of_the_wrong_size(tmp_path):
     image = tmp_path / "wide.png"
     cv2.imwrite(str(image), np.zeros((79, 105, 3), np.uint8))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from semslam.errors import SemslamError
-from semslam.io._text import read_text
+from semslam.io._text import read_text, text_lines
 
 
 def read_table(
@@ -21,7 +21,7 @@ def read_table(
         error: missing or empty file, or a header without data rows.
     """
     name = os.fspath(path)
-    lines = read_text(path, error).splitlines()
+    lines = text_lines(read_text(path, error))
     if not lines or not any(line.strip() for line in lines):
         raise error(f"{name}: empty file")
     header = [h.strip() for h in lines[0].split(",")]

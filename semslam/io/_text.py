@@ -25,3 +25,14 @@ def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise error(f"{os.fspath(path)} line {line}: not UTF-8 text") from None
+
+
+def text_lines(text: str) -> list[str]:
+    """The lines of a text file's content: split at ``\n`` only (a trailing ``\r`` dropped),
+    as the formats define a line. ``str.splitlines`` also splits at form feeds, ``\x1c-\x1e``,
+    ``\x85`` and U+2028, which may stand inside a comment or a file name."""
+    lines = text.split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
+    return [line[:-1] if line.endswith("\r") else line for line in lines]
+

@@ -199,7 +199,9 @@ def _slot(f: Field, n_marks: int) -> list[int]:
         if v != int(v):
             e.fail(f"expected an integer, got {v!r}")
         values.append(int(v))
-    i, j, kind, _angle = values
+    i, j, kind, angle = values
+    if not 0 <= angle <= 180:
+        items[3].fail(f"angle must be 0 to 180 degrees, got {angle}")
     for k, idx in enumerate((i, j)):
         if not 1 <= idx <= n_marks:
             items[k].fail(f"mark index {idx} out of range 1..{n_marks}")

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike
 from semslam.errors import FormatError
 from semslam.geometry import FloatArray
 from semslam.io._rows import parse_number
-from semslam.io._text import read_text
+from semslam.io._text import read_text, text_lines
 from semslam.io.atomic import atomic_write_text
 
 VERTEX_SE2 = "VERTEX_SE2"
@@ -246,8 +246,8 @@ class _Tokens:
             value = int(tok)
         except ValueError:
             raise self.fail(f"{name} is not an integer id ({tok!r})") from None
-        if value < 0:
-            raise self.fail(f"{name} must be >= 0, got {value}")
+        if not 0 <= value < 2**63:  # gtsam keys and numpy int64
+            raise self.fail(f"{name} must be in 0 .. 2^63 - 1, got {value}")
         return value
 
     def number(self, name: str) -> float:
@@ -300,7 +300,7 @@ def parse_g2o(text: str, name: str = "<g2o>") -> PoseGraph2D:
     graph = PoseGraph2D()
     # (line, description, pose ids, point ids) of every reference, checked at the end
     refs: list[tuple[str, str, tuple[int, ...], tuple[int, ...]]] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
+    for lineno, line in enumerate(text_lines(text), start=1):
         body = line.split("#", 1)[0].strip()
         if not body:
             continue

@@ -42,7 +42,7 @@ import numpy as np
 from semslam.errors import DriveError, FormatError
 from semslam.geometry import FloatArray
 from semslam.io._rows import parse_number
-from semslam.io._text import read_text
+from semslam.io._text import read_text, text_lines
 from semslam.io.map_json import MAX_COORDINATE
 from semslam.io.tum import read_tum_rows
 
@@ -148,7 +148,7 @@ def read_frame_times(path: str | os.PathLike[str]) -> FloatArray:
     """
     name = os.fspath(path)
     times: list[float] = []
-    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
+    for lineno, line in enumerate(text_lines(read_text(path, FormatError)), start=1):
         text = line.strip()
         where = f"{name} line {lineno}"
         if not text:
@@ -270,7 +270,7 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
 def _csv_rows(path: Path, required: tuple[str, ...]):
     """(where, {column: text}) per data row of a headed CSV file, with ``required`` columns."""
     name = os.fspath(path)
-    lines = read_text(path, FormatError).splitlines()
+    lines = text_lines(read_text(path, FormatError))
     if not lines or not lines[0].strip():
         raise FormatError(f"{name}: empty file")
     header = [h.strip().lstrip("\ufeff") for h in lines[0].split(",")]

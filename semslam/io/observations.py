@@ -33,7 +33,7 @@ from semslam.io._json import (
 )
 from semslam.io._rows import check_time_order
 from semslam.io._tag import tag_fields, tag_to_dict
-from semslam.io._text import read_text
+from semslam.io._text import read_text, text_lines
 from semslam.io.atomic import atomic_write_text
 from semslam.types import (
     FrameObservations,
@@ -116,7 +116,7 @@ def read_observations(path: str | os.PathLike[str]) -> list[FrameObservations]:
     """
     name = os.fspath(path)
     frames: list[FrameObservations] = []
-    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
+    for lineno, line in enumerate(text_lines(read_text(path, FormatError)), start=1):
         if not line.strip():
             continue
         where = f"{name} line {lineno}"

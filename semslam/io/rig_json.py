@@ -134,6 +134,8 @@ def _camera_from_field(f: Field) -> Camera:
         f["T_vehicle_camera"].fail("last row must be [0, 0, 0, 1]")
     if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
         f["T_vehicle_camera"].fail("rotation part is not orthonormal")
+    if np.linalg.det(T[:3, :3]) < 0:
+        f["T_vehicle_camera"].fail("rotation part is a reflection (determinant -1)")
     return Camera(
         name=f["name"].string(nonempty=True), model=model, K=K, D=D, size=(w, h), T_vehicle_camera=T
     )

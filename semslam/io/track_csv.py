@@ -202,4 +202,6 @@ def _parse_count(token: str, where: str, column: str) -> int:
     if not (text.isascii() and text.isdigit()):  # no sign, no decimal point
         shown = text or "empty"
         raise FormatError(f"{where}: {column} is {shown!r}, expected an integer >= 0")
+    if len(text) > 18:  # held in int64
+        raise FormatError(f"{where}: {column} {text} is out of range")
     return int(text)

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 from semslam.errors import FormatError
 from semslam.geometry import FloatArray, quaternion_to_yaw, yaw_to_quaternion
 from semslam.io._rows import check_finite_columns, check_time_order, check_times, parse_number
-from semslam.io._text import read_text
+from semslam.io._text import read_text, text_lines
 from semslam.io.atomic import atomic_write_text
 
 TUM_HEADER = "# t x y z qx qy qz qw"
@@ -73,7 +73,7 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
     rows: list[list[float]] = []
     lines: list[int] = []
     previous: float | None = None
-    for lineno, line in enumerate(read_text(path, FormatError).splitlines(), start=1):
+    for lineno, line in enumerate(text_lines(read_text(path, FormatError)), start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue

@@ -305,7 +305,11 @@ def refine_depth(
     a = float(angles[lo : hi + 1].mean())
     new_vec = np.array([math.cos(a), math.sin(a)]) * depth
     corners = np.array([c[0], c[1], c[1] + new_vec, c[0] + new_vec])
-    return DetectedSlot(slot.i, slot.j, corners, slot.kind, slot.angle_deg, slot.confidence)
+    angle = slot.angle_deg
+    if slot.kind is SlotKind.SLANTED:  # the angle between entrance and the new separators
+        entrance = (c[1] - c[0]) / max(float(np.hypot(*(c[1] - c[0]))), 1e-9)
+        angle = math.degrees(math.acos(float(np.clip(entrance @ new_vec / depth, -1.0, 1.0))))
+    return DetectedSlot(slot.i, slot.j, corners, slot.kind, angle, slot.confidence)
 
 
 class SlotDetector:

@@ -96,7 +96,7 @@ class TopviewPerception:
         line_sigma: float = DEFAULT_LINE_SIGMA,
     ) -> None:
         self.spec = spec or TopviewSpec()
-        self.slot_detector = slot_detector or SlotDetector()
+        self.slot_detector = slot_detector or SlotDetector(spec=self.spec)
         self.id_reader = id_reader or SlotIdReader()
         self.marking_detector = (marking_detector or MarkingDetector()) if lines else None
         self.corner_sigma = corner_sigma
@@ -111,7 +111,9 @@ class TopviewPerception:
         if slots:
             grey = cv2.cvtColor(topview, cv2.COLOR_BGR2GRAY)  # once, not per slot
             patches = [
-                crop_id_patch(grey, s.uv_corners[:2], into_slot_direction(s)) for s in slots
+                crop_id_patch(grey, s.uv_corners[:2], into_slot_direction(s),
+                              topview_m_per_px=self.spec.metres_per_px)
+                for s in slots
             ]
             ids = tuple(self.id_reader.read_patches(patches))
         t2 = time.perf_counter()

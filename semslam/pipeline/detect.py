@@ -132,9 +132,17 @@ def detect_files(
     """Run the top-view detectors on every image; the JSON-ready result (module doc).
 
     Raises:
-        FormatError: an image is missing or unreadable.
+        FormatError: an image is missing or unreadable, or two images would write the same
+            overlay (the same file name in two folders).
         PerceptionError: a model is missing or broken, or an image has the wrong type.
     """
+    if overlay_dir is not None:
+        stems: dict[str, str] = {}
+        for path in images:
+            first = stems.setdefault(Path(path).stem, os.fspath(path))
+            if first != os.fspath(path):
+                raise FormatError(f"{path}: its overlay would replace that of {first} "
+                                  f"({Path(path).stem}.png); give each image its own name")
     perception = perception or TopviewPerception(lines=lines)
     out = []
     overlays = []  # written only once every image is read and detected: a bad one writes none

@@ -169,7 +169,8 @@ INFO = "1 0 0 1 0 1"
         (V01 + f"EDGE_SE2 0 1 1 0 1e9 {INFO}\n", 3, "yaw 1e+09 is out of range"),
         (V01 + f"EDGE_SE2_MIXTURE 0 1 1 EDGE_SE2 1 0 1 1e300 0 0 {INFO}\n", 3, "x 1e+300"),
         ("VERTEX_SE2 1.0 0 0 0\n", 1, "id is not an integer"),
-        ("VERTEX_SE2 -1 0 0 0\n", 1, "id must be >= 0"),
+        ("VERTEX_SE2 -1 0 0 0\n", 1, "id must be in 0 .. 2^63 - 1"),
+        ("VERTEX_SE2 9223372036854775808 0 0 0\n", 1, "id must be in 0 .. 2^63 - 1"),
         (V01 + "VERTEX_XY 1 0 0\n", 3, "vertex 1 defined twice"),
         (V01 + f"EDGE_SE2 0 2 1 0 0 {INFO}\n", 3, "names pose vertex 2"),
         (V01 + f"EDGE_SE2 0 0 1 0 0 {INFO}\n", 3, "joins vertex 0 to itself"),
@@ -200,3 +201,10 @@ def test_edge_before_its_vertices_is_fine_and_missing_file_is_a_format_error(tmp
     assert len(g.edges) == 1
     with pytest.raises(FormatError, match="file not found"):
         read_g2o(tmp_path / "missing.g2o")
+
+
+def test_a_line_ends_only_at_a_newline():
+    """Form feeds and U+2028 inside a comment do not end the line (g2o reads lines as
+    getline does); a commented-out FIX stays commented out."""
+    g = parse_g2o("VERTEX_SE2 0 0 0 0 # a\u2028FIX 0\r\nVERTEX_SE2 1 1 0 0 # b\x0cc\n", "f.g2o")
+    assert sorted(g.vertices) == [0, 1] and g.fixed == []

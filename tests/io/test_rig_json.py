@@ -68,6 +68,10 @@ def _document() -> dict:
             r"rig\.json: cameras/0/size/1: must be >= 1",
         ),
         (
+            lambda d: [row.__setitem__(0, -row[0]) for row in d["cameras"][0]["T_vehicle_camera"][:3]],
+            r"cameras/0/T_vehicle_camera: rotation part is a reflection",
+        ),
+        (
             lambda d: d["cameras"][0]["T_vehicle_camera"][3].__setitem__(0, 1.0),
             r"cameras/0/T_vehicle_camera: last row",
         ),

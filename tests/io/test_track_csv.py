@@ -80,6 +80,7 @@ def test_file_layout(tmp_path: Path) -> None:
         ),
         (f"{HEADER}\n{ROW.replace(',3,', ',3.5,')}\n", r"run\.csv line 2: associated is '3\.5'"),
         (f"{HEADER}\n{ROW[:-2]},-1\n", r"run\.csv line 2: rejected is '-1', expected an integer"),
+        (f"{HEADER}\n{ROW[:-2]},{10**20}\n", r"run\.csv line 2: rejected 10{20} is out of range"),
         (
             f"{HEADER}\n{ROW}\n\n{ROW.replace('0.1,', '0.05,', 1)}\n",
             r"run\.csv line 4: time goes backwards \(0\.050 after 0\.100\)",

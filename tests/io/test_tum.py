@@ -51,6 +51,13 @@ def test_file_looks_like_tum(tmp_path: Path) -> None:
     )
 
 
+def test_a_quaternion_of_any_length_gives_its_yaw(tmp_path: Path) -> None:
+    path = tmp_path / "q.tum"
+    path.write_text("0 0 0 0 0 0 1 1\n0.1 0 0 0 0 0 0.5 0.5\n0.2 0 0 0 0 0 0.7071 0.7071\n")
+    _, poses = read_tum(path)
+    np.testing.assert_allclose(poses[:, 2], np.pi / 2, atol=1e-4)
+
+
 def test_comments_and_blank_lines_are_skipped(tmp_path: Path) -> None:
     path = tmp_path / "traj.tum"
     path.write_text("# header\n\n0 1 2 0 0 0 0 1\n  # late comment\n1 2 3 0 0 0 1 0\n\n")

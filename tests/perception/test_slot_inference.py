@@ -156,3 +156,28 @@ def test_refine_depth_snaps_a_slanted_slot_to_its_painted_separators():
         0, 1, np.array([el, er, er + g, el + g]) + [0.0, 270.0], SlotKind.SLANTED, 50.0, 0.9
     )
     assert refine_depth(low, slot_at, search_deg=20.0) is None
+
+
+def test_a_slanted_slots_angle_follows_its_separators_when_refined():
+    """The CNN's directions 10 deg off the painted 60 deg separators: refine_depth turns the
+    separators onto the paint, and the slot's angle with them."""
+    import cv2
+
+    from semslam.perception.slots import refine_depth
+
+    img = np.full((600, 600, 3), 80, np.uint8)
+    a = np.array([200.0, 200.0])
+    b = a + [3.0 * 60 / math.sin(math.radians(60.0)), 0.0]
+    d = np.array([math.cos(math.radians(60.0)), math.sin(math.radians(60.0))])
+    for p in (a, b):
+        cv2.line(img, tuple(int(round(x)) for x in p), tuple(int(round(x)) for x in p + 300 * d),
+                 (255, 255, 255), 9)
+    cv2.line(img, (150, 200), (500, 200), (255, 255, 255), 9)
+    (slot,) = infer_slots([mp(*a, math.radians(50.0)), mp(*b, math.radians(50.0))])
+    assert slot.kind is SlotKind.SLANTED
+    refined = refine_depth(img, slot, search_deg=20.0)
+    c = refined.uv_corners
+    entrance, sep = c[1] - c[0], c[3] - c[0]
+    painted = math.degrees(math.acos(entrance @ sep / np.linalg.norm(entrance) / np.linalg.norm(sep)))
+    assert abs(refined.angle_deg - painted) < 1e-6
+    assert abs(refined.angle_deg - slot.angle_deg) > 5.0
