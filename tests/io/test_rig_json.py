@@ -68,7 +68,8 @@ def _document() -> dict:
             r"rig\.json: cameras/0/size/1: must be >= 1",
         ),
         (
-            lambda d: [row.__setitem__(0, -row[0]) for row in d["cameras"][0]["T_vehicle_camera"][:3]],
+            lambda d: [row.__setitem__(0, -row[0])
+                       for row in d["cameras"][0]["T_vehicle_camera"][:3]],
             r"cameras/0/T_vehicle_camera: rotation part is a reflection",
         ),
         (

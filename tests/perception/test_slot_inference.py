@@ -178,6 +178,7 @@ def test_a_slanted_slots_angle_follows_its_separators_when_refined():
     refined = refine_depth(img, slot, search_deg=20.0)
     c = refined.uv_corners
     entrance, sep = c[1] - c[0], c[3] - c[0]
-    painted = math.degrees(math.acos(entrance @ sep / np.linalg.norm(entrance) / np.linalg.norm(sep)))
+    cos_painted = entrance @ sep / np.linalg.norm(entrance) / np.linalg.norm(sep)
+    painted = math.degrees(math.acos(cos_painted))
     assert abs(refined.angle_deg - painted) < 1e-6
     assert abs(refined.angle_deg - slot.angle_deg) > 5.0
