@@ -151,10 +151,19 @@ def _slot_to_dict(slot: SlotObservation) -> dict[str, Any]:
     }
 
 
+MIN_SLOT_SIDE = 0.05
+"""m: a slot whose side is shorter is no slot (its rectangle has no direction to fit)."""
+
+
 def _slot_from_field(f: Field) -> SlotObservation:
     label = f.get("label")
+    corners = f["corners"].array((4, 2), within=MAX_RANGE)
+    sides = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
+    if sides.min() < MIN_SLOT_SIDE:
+        f["corners"].fail(f"a side of {sides.min():.3g} m: corners must be at least "
+                          f"{MIN_SLOT_SIDE} m apart")
     return SlotObservation(
-        vCorners=f["corners"].array((4, 2), within=MAX_RANGE),
+        vCorners=corners,
         kind=f["kind"].choice(SlotKind),
         label=None if label is None else label.string(),
         label_confidence=f["label_confidence"].number(0.0, 1.0),

@@ -135,6 +135,14 @@ class MappingResult:
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
+
+def _pose_spread(poses: FloatArray, centre: FloatArray) -> FloatArray:
+    """(3, 3) sample covariance of poses (N, 3) about ``centre``, yaw differences wrapped (a
+    tag facing +-pi has sightings on both sides of the cut)."""
+    d = np.asarray(poses, dtype=float) - centre
+    d[:, 2] = wrap_angle(d[:, 2])
+    return d.T @ d / (len(d) - 1)
+
 class Mapper:
     """Builds a semantic map frame by frame; call :meth:`add_frame` in time order, then
     :meth:`finish`."""
@@ -666,12 +674,20 @@ class Mapper:
             tuple(self.sightings),
             stats,
             tuple(
-                (a, b, d if J is None else d + J @ (self.calibration - [1.0, 0.0]), c)
+                (a, b, d if J is None else d + J @ (self._calibration_of(b) - [1.0, 0.0]), c)
                 for a, b, d, c, J in self.odometry_edges
             ),
             tuple(self.tag_edges),
             slot_of_landmark,
         )
+
+    def _calibration_of(self, k: int) -> FloatArray:
+        """The (speed scale, gyro bias) the odometry factor into keyframe ``k`` was solved
+        with: its calibration window's estimate."""
+        key = K(k // self.cfg.calibration_window)
+        if self.use_graph and self.graph.has(key):
+            return self.graph.vector(key)
+        return self.calibration
 
     def _decide_components(self) -> None:
         """Read each slot factor's chosen component at the final estimate (the audit)."""
@@ -772,7 +788,7 @@ class Mapper:
                         cov = rotate_pose_covariance(marginal, mTt[2])
                     except RuntimeError:  # as for slots: the spread of its sightings
                         poses = np.array(info["poses"])
-                        cov = np.cov(poses.T) / len(poses) if len(poses) > 1 else cov
+                        cov = _pose_spread(poses, mTt) / len(poses) if len(poses) > 1 else cov
                         self._marginal_fallbacks += 1
             else:
                 poses = np.array(info["poses"])
@@ -782,7 +798,7 @@ class Mapper:
                         math.atan2(np.sin(poses[:, 2]).mean(), np.cos(poses[:, 2]).mean()),
                     ]
                 )
-                cov = np.cov(poses.T) if len(poses) > 1 else np.zeros((3, 3))
+                cov = _pose_spread(poses, mTt) if len(poses) > 1 else np.zeros((3, 3))
             mTt[2] = wrap_angle(mTt[2])
             tags.append(
                 Tag(

@@ -698,8 +698,11 @@ class _Solver:
         out = gtsam.Values()
         for vid in self.p.order:
             out.insert(vid, T.compose(estimate.atPose2(vid)))
-        for key in self.p.point_key.values():
-            out.insert(key, np.asarray(T.transformFrom(estimate.atPoint2(key)), dtype=float))
+        for pid, key in self.p.point_key.items():
+            if estimate.exists(key):
+                out.insert(key, np.asarray(T.transformFrom(estimate.atPoint2(key)), dtype=float))
+            else:  # a point no edge observes stays where the file holds it, as in batch
+                out.insert(key, np.asarray(self.p.graph.points[pid], dtype=float))
         return out
 
     # ------------------------------------------------------------------ re-check

@@ -37,9 +37,13 @@ def arrays(shape: tuple[int, ...], values=metres) -> st.SearchStrategy[np.ndarra
 covariances = arrays((3, 3), st.floats(-10.0, 10.0)).map(lambda a: a @ a.T)  # PSD
 
 
+def _has_sides(corners: np.ndarray) -> bool:
+    return bool(np.hypot(*(np.roll(corners, -1, axis=0) - corners).T).min() >= 0.05)
+
+
 slots = st.builds(
     SlotObservation,
-    vCorners=arrays((4, 2)),
+    vCorners=arrays((4, 2)).filter(_has_sides),
     kind=st.sampled_from(SlotKind),
     label=st.none() | st.text(max_size=8),
     label_confidence=unit,
@@ -129,6 +133,10 @@ def _write(path: Path, documents: list[dict]) -> None:
         (
             lambda d: d["slots"][0]["corners"].pop(),
             r"obs\.jsonl line 3: slots/0/corners: expected 4 points, got 3",
+        ),
+        (
+            lambda d: d["slots"][0]["corners"].__setitem__(1, d["slots"][0]["corners"][0]),
+            r"obs\.jsonl line 3: slots/0/corners: a side of 0 m: corners must be at least 0.05 m",
         ),
         (
             lambda d: d["slots"][0].update(kind="round"),

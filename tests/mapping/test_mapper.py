@@ -240,3 +240,42 @@ def test_mapped_lines_carry_the_uncertainty_of_their_position(small):
     assert 0.5 < np.sqrt(np.mean(off**2) / np.mean(sigma**2)) < 2.0
     dead = _map(small, small.noisy, optimizer="none").map.markings
     assert all(m.sigma is None for m in dead)
+
+
+@pytest.mark.parametrize("optimizer", ["none", "isam2"])
+def test_a_tag_facing_back_across_pi_gets_a_small_yaw_variance(optimizer):
+    """Sightings 0.02 rad apart on both sides of the +-pi cut are one heading."""
+    from semslam.types import TagObservation
+
+    t = np.arange(0, 10, 0.02)
+    mapper = Mapper(MappingConfig(optimizer=optimizer), np.zeros(3), t, np.ones_like(t),
+                    np.zeros_like(t))
+    for k in range(30):
+        yaw = np.pi - 0.01 if k % 2 else -np.pi + 0.01
+        seen = np.array([6.0 - 0.1 * k, 1.0, yaw])
+        mapper.add_frame(FrameObservations(k * 0.1, tags=(
+            TagObservation("tag36h11", 3, 0.16, seen, 1.0, np.diag([1e-4, 1e-4, 1e-4])),)))
+    (tag,) = mapper.finish().map.tags
+    assert abs(abs(tag.mTt[2]) - np.pi) < 0.02
+    assert tag.covariance[2, 2] < 1e-3
+
+
+def test_each_exported_odometry_edge_is_corrected_by_its_own_calibration_window():
+    from semslam.mapping.mapper import K
+
+    cfg = SimulationConfig()
+    cfg = cfg.model_copy(update={"drive": cfg.drive.model_copy(update={"max_duration": 30.0})})
+    sim = simulate_drive("small", 2, 0, cfg)
+    mcfg = MappingConfig(calibration_window=8)
+    rec = sim.record
+    mapper = Mapper(mcfg, sim.frame_poses[0], rec.t, rec.odo_speed, rec.odo_yaw_rate)
+    for frame in sim.noisy:
+        mapper.add_frame(frame)
+    result = mapper.finish()
+    windows = {b // 8 for _, b, *_ in mapper.odometry_edges}
+    assert len(windows) > 3
+    for (_, b, d, _, J), (_, _, exported, _) in zip(
+        mapper.odometry_edges, result.odometry_edges, strict=True
+    ):
+        own = mapper.graph.vector(K(b // 8))
+        np.testing.assert_allclose(exported, d + J @ (own - [1.0, 0.0]), atol=1e-12)

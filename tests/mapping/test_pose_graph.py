@@ -12,6 +12,7 @@ from semslam.io.g2o import (
     MixtureEdge2D,
     PointEdge2D,
     PoseGraph2D,
+    parse_g2o,
     read_g2o,
     write_g2o,
 )
@@ -296,6 +297,14 @@ def test_fix_lines_and_landmarks():
         seen = res.points[0] - res.poses[2, :2]
         true = landmark - truth[2, :2]
         assert np.linalg.norm(seen) == pytest.approx(np.linalg.norm(true), abs=0.1)
+
+
+def test_a_point_no_edge_observes_stays_where_the_file_holds_it():
+    g = parse_g2o("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_XY 5 2 1\n"
+                  "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    for schedule in ("incremental", "batch"):
+        res = optimize_pose_graph(g, "maxmix", schedule=schedule)
+        assert res.points.tolist() == [[2.0, 1.0]], schedule
 
 
 def test_bad_arguments():
