@@ -135,13 +135,13 @@ class MappingResult:
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
-
 def _pose_spread(poses: FloatArray, centre: FloatArray) -> FloatArray:
     """(3, 3) sample covariance of poses (N, 3) about ``centre``, yaw differences wrapped (a
     tag facing +-pi has sightings on both sides of the cut)."""
     d = np.asarray(poses, dtype=float) - centre
     d[:, 2] = wrap_angle(d[:, 2])
     return d.T @ d / (len(d) - 1)
+
 
 class Mapper:
     """Builds a semantic map frame by frame; call :meth:`add_frame` in time order, then
