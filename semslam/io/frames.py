@@ -116,6 +116,8 @@ def _path_problem(p: str) -> str | None:
         return None
     if "," in p or "\n" in p or "\r" in p:
         return f"path {p!r} contains ',' or a line break"
+    if p != p.strip():  # the reader strips each column
+        return f"path {p!r} starts or ends with white space"
     if "\\" in p or re.match(r"[A-Za-z]:", p):
         return f"path {p!r} must use '/' and be relative"
     pure = PurePosixPath(p)

@@ -40,7 +40,9 @@ def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> N
         poses: (N, 3) poses ``(x, y, yaw)`` in the map frame, metres and radians.
 
     Raises:
-        FormatError: shapes disagree, no poses, a value is NaN/infinite or time does not increase.
+        FormatError: shapes disagree, no poses, a value is NaN/infinite or beyond what
+            :func:`read_tum` reads (:data:`MAX_TIME`, :data:`MAX_POSITION`), or time does
+            not increase at the file's microseconds: what would not read back.
     """
     times = np.asarray(t, dtype=float)
     p = np.asarray(poses, dtype=float)
@@ -52,10 +54,22 @@ def write_tum(path: str | os.PathLike[str], t: ArrayLike, poses: ArrayLike) -> N
         raise FormatError(f"{os.fspath(path)}: no poses to write (empty trajectory)")
     check_finite_columns({"x": p[:, 0], "y": p[:, 1], "yaw": p[:, 2]}, path, FormatError, "pose")
     check_times(times, path, FormatError, "pose")
+    for name, values, limit in (("t", times, MAX_TIME), ("x", p[:, 0], MAX_POSITION),
+                                ("y", p[:, 1], MAX_POSITION)):
+        beyond = np.flatnonzero(np.abs(values) > limit)
+        if len(beyond):
+            k = int(beyond[0])
+            raise FormatError(f"{os.fspath(path)}: pose {k}: {name} {values[k]:g} is out of "
+                              f"range (|{name}| <= {limit:g})")
+    stamps = [f"{ti:.6f}" for ti in times]
+    for k in range(1, len(stamps)):
+        if float(stamps[k]) <= float(stamps[k - 1]):
+            raise FormatError(f"{os.fspath(path)}: pose {k}: time {stamps[k]} s repeats at the "
+                              "file's microseconds")
     lines = [TUM_HEADER]
-    for ti, (x, y, yaw) in zip(times, p, strict=True):
+    for stamp, (x, y, yaw) in zip(stamps, p, strict=True):
         qx, qy, qz, qw = yaw_to_quaternion(float(yaw))
-        lines.append(f"{ti:.6f} {x:.6f} {y:.6f} 0.000000 {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}")
+        lines.append(f"{stamp} {x:.6f} {y:.6f} 0.000000 {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}")
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 

@@ -45,7 +45,8 @@ def to_pose_graph(result: MappingResult) -> PoseGraph2D:
         slot_id = result.slot_of_landmark.get(s.landmark) if s.landmark is not None else None
         if slot_id is None:
             continue
-        info = np.eye(2) / max(s.observation.corner_sigma, 1e-3) ** 2
+        sigma = s.sigma if s.sigma is not None else s.observation.corner_sigma
+        info = np.eye(2) / max(sigma, 1e-3) ** 2
         for c in range(4):
             graph.point_edges.append(
                 PointEdge2D(

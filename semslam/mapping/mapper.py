@@ -118,6 +118,7 @@ class Sighting:
     fused: int = 1  # detections averaged into this one (frame_fusion)
     status: SightingStatus = SightingStatus.POOLED
     landmark: int | None = None
+    sigma: float | None = None  # m, the corner sigma of its factor (``_observation_sigma``)
 
 
 @dataclass(frozen=True, eq=False)
@@ -495,10 +496,12 @@ class Mapper:
         )
 
     def _observation_sigma(self, sighting: Sighting) -> float:
-        """Corner sigma of a (fused) detection, floored and scaled by its confidence."""
+        """Corner sigma of a (fused) detection, floored and scaled by its confidence; kept
+        on the sighting (the g2o export writes the information its factor had)."""
         obs = sighting.observation
         sigma = max(obs.corner_sigma, self.cfg.slot_corner_sigma_min / math.sqrt(sighting.fused))
-        return sigma / math.sqrt(max(obs.confidence, 0.05))
+        sighting.sigma = sigma / math.sqrt(max(obs.confidence, 0.05))
+        return sighting.sigma
 
     def _attach(self, sighting: Sighting, candidates: list[tuple[int, float, bool]]) -> None:
         """Turn a sighting with candidate landmarks into a factor."""

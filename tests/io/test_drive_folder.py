@@ -156,7 +156,15 @@ def test_frames_writer_refuses(tmp_path: Path) -> None:
         write_frames(path, FrameIndex(np.array([0.0, 1.0]), {"front": ["a.png"]}))
     with pytest.raises(DriveFormatError, match=r"frame 0: front: path 'a,b.png' contains ','"):
         write_frames(path, FrameIndex(np.array([0.0]), {"front": ["a,b.png"]}))
+    with pytest.raises(DriveFormatError, match=r"frame 0: front: path ' a.png' starts or ends"):
+        write_frames(path, FrameIndex(np.array([0.0]), {"front": [" a.png"]}))
     assert not path.exists()
+
+
+def test_a_form_feed_in_an_image_path_reads_back(tmp_path: Path) -> None:
+    path = tmp_path / "frames.csv"
+    write_frames(path, FrameIndex(np.array([0.0]), {"front": ["img/a\x0cb.png"]}))
+    assert read_frames(path).images["front"] == ["img/a\x0cb.png"]
 
 
 # --------------------------------------------------------------------------- drive.json

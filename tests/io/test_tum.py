@@ -120,6 +120,9 @@ def test_close_times_are_told_apart(tmp_path: Path) -> None:
         ([0.0, 1.0], [[0, 0, 0], [0, np.nan, 0]], r"pose 1: y is nan"),
         ([1.0, 1.0], [[0, 0, 0], [0, 0, 0]], r"pose 1: time repeats"),
         ([], np.zeros((0, 3)), r"no poses"),
+        ([0.0, 1e-7], [[0, 0, 0], [0, 0, 0]], r"pose 1: time 0\.000000 s repeats at the file"),
+        ([0.0, 1.0], [[0, 0, 0], [2e6, 0, 0]], r"pose 1: x 2e\+06 is out of range"),
+        ([0.0, 2e11], [[0, 0, 0], [0, 0, 0]], r"pose 1: t 2e\+11 is out of range"),
     ],
 )
 def test_writer_refuses(tmp_path: Path, t, poses, message: str) -> None:

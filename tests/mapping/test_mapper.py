@@ -279,3 +279,20 @@ def test_each_exported_odometry_edge_is_corrected_by_its_own_calibration_window(
     ):
         own = mapper.graph.vector(K(b // 8))
         np.testing.assert_allclose(exported, d + J @ (own - [1.0, 0.0]), atol=1e-12)
+
+
+def test_the_g2o_export_carries_each_slot_factors_own_information(small):
+    from semslam.mapping.export import CORNER_ID_OFFSET, to_pose_graph
+
+    result = _map(small, small.noisy)
+    edges = {(e.a, e.b): e.information for e in to_pose_graph(result).point_edges}
+    checked = differs = 0
+    for s in result.sightings:
+        slot_id = result.slot_of_landmark.get(s.landmark) if s.landmark is not None else None
+        if s.status not in (SightingStatus.ACCEPTED, SightingStatus.REASSIGNED) or slot_id is None:
+            continue
+        info = edges[(s.keyframe, CORNER_ID_OFFSET + 4 * slot_id)]
+        np.testing.assert_allclose(info, np.eye(2) / s.sigma**2)
+        checked += 1
+        differs += not math.isclose(s.sigma, s.observation.corner_sigma)
+    assert checked > 20 and differs > 0
