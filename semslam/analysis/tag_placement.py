@@ -106,7 +106,7 @@ def greedy_placement(
     sensors = sensors or SensorModel()
     infos = np.array(base_infos, float)
     steps = [_step(0, _sigmas(infos, poses, times, grade))]
-    cand_infos = [tag_information(poses, c[None], None, sensors)[0] for c in candidates]
+    cand_infos = [_expected_tag_information(poses, c[None], sensors) for c in candidates]
     free = list(range(len(candidates)))
     for n in range(1, count + 1):
         best = None
@@ -135,11 +135,17 @@ def even_placement(
     grade: OdometryGrade,
     sensors: SensorModel | None = None,
 ) -> PlacementStep:
-    """``count`` tags spread evenly over the candidates (in route order, sides
-    alternating): the accuracy they give together."""
+    """``count`` tags spread evenly over the candidates (two per row along the route: one
+    side of each row, sides alternating, then the other sides spread evenly; at most all of
+    them): the accuracy they give together."""
     rows, count = len(candidates) // 2, max(count, 0)
-    at = np.linspace(0, rows - 1, count + 2)[1:-1] if count < rows else np.arange(rows)
+    first = min(count, rows)
+    at = np.linspace(0, rows - 1, first + 2)[1:-1] if first < rows else np.arange(rows)
     chosen = [2 * int(round(a)) + (i % 2) for i, a in enumerate(at)]
+    second = min(count - first, rows)
+    if second:  # the other side of rows spread over the route
+        at = np.linspace(0, rows - 1, second + 2)[1:-1] if second < rows else np.arange(rows)
+        chosen += [2 * int(round(a)) + 1 - (int(round(a)) % 2) for a in at]
     return _placed(base_infos, poses, times, candidates[chosen], grade, sensors)
 
 
@@ -164,8 +170,14 @@ def _placed(base_infos, poses, times, tags: FloatArray, grade, sensors) -> Place
     """The route's accuracy with ``tags`` (T, 3) added to the map's information."""
     infos = np.array(base_infos, float)
     if len(tags):
-        infos = infos + tag_information(poses, tags, None, sensors or SensorModel())[0]
+        infos = infos + _expected_tag_information(poses, tags, sensors or SensorModel())
     return _step(len(tags), _sigmas(infos, poses, times, grade))
+
+
+def _expected_tag_information(poses: FloatArray, tags: FloatArray, sensors: SensorModel):
+    """(P, 3, 3) information of new ``tags`` (T, 3) at each route pose, times the chance they
+    are detected, as the map's own tags count (:mod:`semslam.analysis.accuracy`)."""
+    return sensors.tag_detection_rate * tag_information(poses, tags, None, sensors)[0]
 
 
 def placement_spread(steps: Sequence[PlacementStep]) -> dict[str, dict[str, float]]:

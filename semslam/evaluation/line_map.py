@@ -88,8 +88,12 @@ class LineMapComparison:
 def _stats(d: FloatArray, tolerance: float) -> DirectionStats:
     if len(d) == 0:
         return DirectionStats(0, float("nan"), float("nan"), float("nan"), float("nan"))
-    with np.errstate(invalid="ignore"):  # infinite distances (nothing on the other side)
-        median, p95 = float(np.median(d)), float(np.percentile(d, 95))
+    # infinite distances (nothing on the other side) stay infinite: interpolating between
+    # two infinities gives NaN, so each statistic is an order statistic of d
+    s = np.sort(d)
+    median = float(np.median(d)) if np.isfinite(s[len(s) // 2]) else float("inf")
+    p95 = float(np.percentile(d, 95)) if np.isfinite(s[-1]) else float(
+        s[min(len(s) - 1, int(np.ceil(0.95 * (len(s) - 1))))])
     return DirectionStats(
         int(len(d)),
         median,

@@ -84,3 +84,33 @@ def test_random_placement_of_every_candidate_adds_all_their_information():
     assert step.count == len(cands)
     np.testing.assert_allclose([step.worst_m, step.p95_m], [max(sigma), np.percentile(sigma, 95)],
                                rtol=1e-9)
+
+
+def test_even_placement_places_as_many_tags_as_asked_up_to_every_candidate():
+    poses, t = _route()
+    infos, _ = route_information(MapGeometry(_map()), poses)
+    cands = candidate_tags(poses, spacing=10.0, offset=3.0)  # 7 rows, 14 candidates
+    grade = GRADES["automotive"]
+    counts = [even_placement(infos, poses, t, cands, k, grade).count for k in (3, 7, 10, 14, 20)]
+    assert counts == [3, 7, 10, 14, 14]
+    every = random_placement(infos, poses, t, cands, 99, grade, np.random.default_rng(1))
+    assert even_placement(infos, poses, t, cands, 14, grade).worst_m == every.worst_m
+
+
+def test_a_placed_tag_counts_as_often_as_it_is_detected():
+    """A candidate tag is worth the map's own tags' information times the detection rate."""
+    from semslam.analysis.accuracy import SensorModel
+
+    poses, t = _route()
+    infos, _ = route_information(MapGeometry(_map()), poses)
+    cands = candidate_tags(poses, spacing=10.0, offset=3.0)
+    grade = GRADES["automotive"]
+    half = SensorModel(tag_detection_rate=0.5)
+    step = random_placement(infos, poses, t, cands, 99, grade, np.random.default_rng(1), half)
+    full = infos + 0.5 * tag_information(poses, cands, None, half)[0]
+    sigma = [position_sigma(p) for p in filter_route(full, poses, t, grade)]
+    np.testing.assert_allclose(step.worst_m, max(sigma), rtol=1e-9)
+    first = greedy_placement(infos, poses, t, cands, 1, grade, half)[1]
+    alone = random_placement(infos, poses, t, np.array([first.tag]), 1, grade,
+                             np.random.default_rng(0), half)
+    np.testing.assert_allclose(first.worst_m, alone.worst_m, rtol=1e-9)

@@ -59,6 +59,7 @@ def test_nothing_to_compare() -> None:
     ref = np.array([[[0.0, 0.0], [1.0, 0.0]]])
     c = compare_line_maps(np.zeros((0, 2, 2)), ref, np.zeros((1, 2)))
     assert c.reference_to_map.points == 2 and np.isinf(c.reference_to_map.median_m)
+    assert np.isinf(c.reference_to_map.p95_m) and np.isinf(c.reference_to_map.max_m)
     assert c.map_to_reference.points == 0 and math.isnan(c.map_to_reference.p95_m)
     far = compare_line_maps(ref, ref, np.array([[100.0, 100.0]]))
     assert far.reference_to_map.points == 0
