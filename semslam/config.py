@@ -113,6 +113,12 @@ class DriveConfig(_Section):
             raise ValueError(
                 f"min_speed ({self.min_speed:g}) must be <= max_speed ({self.max_speed:g})"
             )
+        steps = self.odometry_rate / self.frame_rate  # a frame on every steps-th sample
+        if steps < 1 - 1e-9 or abs(steps - round(steps)) > 1e-9:
+            raise ValueError(
+                f"frame_rate ({self.frame_rate:g} Hz) must divide odometry_rate "
+                f"({self.odometry_rate:g} Hz): frames fall on odometry samples"
+            )
         return self
 
 

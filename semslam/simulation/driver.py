@@ -131,7 +131,10 @@ def odometry_with_errors(
     times one scale error per drive plus white noise; yaw rate plus a constant bias, its
     random walk and white noise (``noise``; ``dt``: seconds from each sample to the next,
     a scalar or one per sample). Used for simulated drives and to add drift to a recorded
-    drive whose odometry is its ground truth."""
+    drive whose odometry is its ground truth. The draws are taken component by component
+    from ``rng``, so the gyro noise depends on the number of samples: a drive cut short
+    (``max_duration``) has the same speeds and observations as the start of the whole
+    drive, but other gyro noise."""
     n = len(speed)
     scale = 1.0 + rng.normal(0.0, noise.speed_scale_sigma)
     odo_speed = np.asarray(speed) * scale + rng.normal(0.0, noise.speed_sigma, n)

@@ -184,8 +184,10 @@ class _Builder:
 
 
 def _row_labels(rng: np.random.Generator, row_index: int, count: int, letter: str) -> list[str]:
-    """Painted IDs for one row: ``B17`` style, or plain numbers ``117`` (2-4 characters)."""
-    if rng.random() < 0.7:
+    """Painted IDs for one row: ``B17`` style, or plain numbers ``117`` (2-4 characters).
+    A row of more than 99 slots (``large``) is lettered: its numbers would run into the next
+    row's hundred."""
+    if rng.random() < 0.7 or count > 99:
         return [f"{letter}{k + 1}" for k in range(count)]
     start = (row_index + 1) * 100 + 1
     return [str(start + k) for k in range(count)]

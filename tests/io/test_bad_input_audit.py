@@ -212,6 +212,15 @@ def test_min_speed_above_max_speed_names_both(tmp_path: Path) -> None:
     _one_line(exc, "c.json", "simulation.drive", "min_speed (5)", "max_speed (1)")
 
 
+def test_a_frame_rate_that_does_not_divide_the_odometry_rate_is_refused(tmp_path: Path) -> None:
+    """Frames fall on odometry samples: at 50 Hz odometry, 20 Hz frames would come at 25 Hz."""
+    path = tmp_path / "c.json"
+    path.write_text('{"simulation": {"drive": {"frame_rate": 20}}}')
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", "simulation.drive", "frame_rate (20 Hz) must divide odometry_rate")
+
+
 @pytest.mark.parametrize(
     ("field", "value"), [("odometry_rate", 1e9), ("frame_rate", 1000.0), ("odometry_rate", 0)]
 )

@@ -70,3 +70,12 @@ def test_line_widths_in_range_and_tags_on_pillars():
 def test_unknown_preset_is_refused():
     with pytest.raises(SimulationError, match="unknown preset"):
         make_world("huge", 0)
+
+
+@pytest.mark.parametrize("seed", [2, 7])
+def test_large_worlds_paint_each_slot_id_once(seed):
+    """Rows of more than 99 slots are lettered: numbered, they ran into the next row's."""
+    labels = [s.label for s in make_world("large", seed).slots if s.label]
+    assert len(set(labels)) == len(labels)
+    assert all(2 <= len(label) <= 4 for label in labels)
+
