@@ -36,7 +36,8 @@ class PresetName(StrEnum):
 def _fail(error: Exception) -> None:
     """One line on stderr for a known error (bad input, unwritable folder), exit code 2."""
     if isinstance(error, OSError) and error.filename:
-        message = f"{error.filename}: {error.strerror or error}"
+        # a failed rename names the temporary file first and the target second
+        message = f"{error.filename2 or error.filename}: {error.strerror or error}"
     else:
         message = str(error)
     typer.echo(f"semslam: error: {message}", err=True)
@@ -206,6 +207,9 @@ def map_command(
         if out in sibling_paths(out):
             raise SemslamError(f"-o {output}: a file written beside the map would replace it; "
                                "name the map .json")
+        for sibling in sibling_paths(out):
+            if sibling.is_dir():
+                raise SemslamError(f"-o {output}: {sibling}, written beside the map, is a folder")
         cfg = with_overrides(
             load_config(config), mapping={"optimizer": optimizer, "robust": robust}
         )
@@ -249,6 +253,9 @@ def localize(
                                "name the trajectory .tum")
         if track.is_dir():
             raise SemslamError(f"-o {output}: {track} (the per-frame track) is a folder")
+        if map_path.resolve() in (out.resolve(), track.resolve()):
+            raise SemslamError(f"-o {output}: would replace the map {map_path} it localizes "
+                               "against")
         parse_init(init)
         cfg = with_overrides(load_config(config), localization={"update": update})
         summary = localize_drive(drive, map_path, out, observations.value, init, cfg, progress)

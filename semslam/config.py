@@ -10,6 +10,7 @@ prints the result; every run writes it beside its outputs.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 from pathlib import Path
@@ -23,7 +24,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from pydantic_settings import BaseSettings, SettingsConfigDict, SettingsError
+from pydantic_settings import BaseSettings, EnvSettingsSource, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
 
@@ -40,6 +41,8 @@ class _Section(BaseModel):
     @classmethod
     def _within_max_setting(cls, value: Any) -> Any:
         for v in value if isinstance(value, tuple) else (value,):
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{v} is not a finite number")
             if isinstance(v, float) and abs(v) > MAX_SETTING:
                 raise ValueError(f"{v:g} is out of range (|value| <= {MAX_SETTING:g})")
         return value
@@ -86,6 +89,14 @@ class ObservationNoiseConfig(_Section):
     marking_miss_rate: float = Field(0.1, ge=0, le=1)
     marking_false_rate: float = Field(0.1, ge=0, lt=1)
     marking_min_length: float = Field(0.4, gt=0, description="shortest visible segment, m")
+
+    @field_validator("label_confidence_range", "detection_confidence_range", mode="after")
+    @classmethod
+    def _a_range_of_confidences(cls, value: tuple[float, float]) -> tuple[float, float]:
+        low, high = value
+        if not 0.0 <= low <= high <= 1.0:
+            raise ValueError(f"({low:g}, {high:g}) must be (low, high) with 0 <= low <= high <= 1")
+        return value
 
 
 class DriveConfig(_Section):
@@ -191,6 +202,7 @@ class MappingConfig(_Section):
     calibration_walk: tuple[float, float] = Field(
         (0.002, 2e-5), description="random walk of (scale, bias) from one window to the next"
     )
+
     tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
     slot_corner_sigma_min: float = Field(0.02, gt=0, description="floor on corner sigma, m")
     id_confidence_high: float = Field(
@@ -247,6 +259,13 @@ class MappingConfig(_Section):
     marking_min_support: int = Field(
         5, ge=1, description="detections before a line joins the graph (and the map)"
     )
+
+    @field_validator("calibration_walk", mode="after")
+    @classmethod
+    def _a_walk_is_a_sigma(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if min(value) < 0:
+            raise ValueError(f"({value[0]:g}, {value[1]:g}) must be sigmas >= 0")
+        return value
 
 
 class LocalizationConfig(_Section):
@@ -364,21 +383,77 @@ class SemslamConfig(BaseSettings):
 
 
 def load_config(path: Path | None = None) -> SemslamConfig:
-    """Defaults, overridden by the JSON file at ``path`` (if given) and SEMSLAM_ variables."""
+    """Defaults, overridden by the JSON file at ``path`` (if given), overridden in turn by
+    SEMSLAM_ variables."""
     data: dict[str, Any] = {}
     if path is not None:
         try:
-            data = json.loads(Path(path).read_text())
+            data = json.loads(Path(path).read_text(encoding="utf-8-sig"))
         except FileNotFoundError:
             raise ConfigError(f"{path}: config file not found") from None
+        except UnicodeDecodeError:
+            raise ConfigError(f"{path}: not UTF-8 text") from None
+        except OSError as e:
+            raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
         except json.JSONDecodeError as e:
             raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: a config file holds one JSON object")
-    return _build(data, str(path) if path is not None else "configuration")
+    where = str(path) if path is not None else "configuration"
+    return _build(_merged(data, _environment()), where)
 
 
 _ENV_PREFIX = "SEMSLAM_"
+
+
+def _environment() -> dict[str, Any]:
+    """The settings the SEMSLAM_ variables give, nested by section; a variable naming no
+    section is refused (a misspelt one would otherwise be ignored)."""
+    sections = {name.upper() for name in SemslamConfig.model_fields}
+    for name in os.environ:
+        upper = name.upper()
+        if upper.startswith(_ENV_PREFIX):
+            section = upper[len(_ENV_PREFIX):].split("__")[0]
+            if section not in sections:
+                known = ", ".join(sorted(s.lower() for s in sections))
+                raise ConfigError(f"{name}: no section {section.lower()!r} ({known})")
+    try:
+        return EnvSettingsSource(SemslamConfig)()
+    except SettingsError as e:
+        raise _not_json(e) from None
+
+
+def _merged(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``top``'s settings put over it, section by section."""
+    out = dict(base)
+    for key, value in top.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _not_json(error: SettingsError) -> ConfigError:
+    """A SEMSLAM_ variable whose value is not valid JSON, named."""
+    found = re.search(r'field "([^"]+)"', str(error))
+    field = found.group(1) if found else ""
+    variable = _environment_variable((field,)) or f"{_ENV_PREFIX}{field.upper()}"
+    return ConfigError(f"{variable}: not valid JSON (a section is set as a JSON object)")
+
+
+def _set_by(variable: str, value: Any) -> bool:
+    """Whether the SEMSLAM_ ``variable`` holds ``value`` (the value that failed), as text
+    or as JSON."""
+    raw = os.environ.get(variable)
+    if raw is None:
+        return False
+    if isinstance(value, str) and raw == value:
+        return True
+    try:
+        return json.loads(raw) == value
+    except ValueError:
+        return False
 
 
 def _environment_variable(loc: tuple[Any, ...]) -> str | None:
@@ -400,18 +475,16 @@ def _build(data: dict[str, Any], where: str) -> SemslamConfig:
     try:
         return SemslamConfig(**data)
     except SettingsError as e:  # a SEMSLAM_ variable whose value is not valid JSON
-        found = re.search(r'field "([^"]+)"', str(e))
-        field = found.group(1) if found else ""
-        variable = _environment_variable((field,)) or f"{_ENV_PREFIX}{field.upper()}"
-        raise ConfigError(
-            f"{variable}: not valid JSON (a section is set as a JSON object)"
-        ) from None
+        raise _not_json(e) from None
     except ValidationError as e:
         err = e.errors()[0]
         field = ".".join(str(p) for p in err["loc"])
         message = str(err["msg"]).removeprefix("Value error, ")
         variable = _environment_variable(tuple(err["loc"]))
-        if variable is not None:
+        # a variable is blamed for a field only if it holds the value that failed; for a
+        # section's cross-field check (its input the section) one of the section's is named
+        failed = err.get("input")
+        if variable is not None and (isinstance(failed, dict) or _set_by(variable, failed)):
             where = variable
         raise ConfigError(f"{where}: {field}: {message}") from None
 

@@ -57,6 +57,22 @@ def test_localize_refuses_a_far_init_before_any_work(small_drive, tmp_path):
     assert not (tmp_path / "x.tum").exists()
 
 
+def test_map_refuses_a_folder_where_a_file_beside_the_map_goes(small_drive, tmp_path):
+    (tmp_path / "m.audit.json").mkdir()
+    result = _run("map", small_drive, "-o", tmp_path / "m.json", "--no-progress")
+    _fails(result, "m.audit.json, written beside the map, is a folder")
+    assert sorted(os.listdir(tmp_path)) == ["m.audit.json"]
+
+
+def test_localize_refuses_to_write_over_its_own_map(small_drive, tmp_path):
+    the_map = tmp_path / "m.json"
+    shutil.copy(small_drive / "world.json", the_map)
+    before = the_map.read_bytes()
+    result = _run("localize", small_drive, "--map", the_map, "-o", the_map)
+    _fails(result, "would replace the map")
+    assert the_map.read_bytes() == before
+
+
 # 2
 @pytest.mark.parametrize("command", ["map", "localize", "optimize", "accuracy"])
 def test_empty_output_path(small_drive, tmp_path, command):
@@ -244,6 +260,20 @@ def test_map_from_images_refuses_a_front_image_of_the_wrong_size(small_drive, tm
     assert result.exit_code == 2, result.output
     assert "f0.png: 640 x 400 px, but rig.json gives the front camera 1280 x 800" in result.stderr
     assert "Traceback" not in result.output
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_map_from_images_names_a_top_view_of_the_wrong_size(small_drive, tmp_path):
+    drive = shutil.copytree(small_drive, tmp_path / "d")  # a copy to break
+    times = (drive / "frames.csv").read_text().split()[1:]
+    (drive / "img").mkdir()
+    cv2.imwrite(str(drive / "img" / "t0.png"), np.full((100, 100, 3), 128, np.uint8))
+    rows = ["t,topview", f"{times[0]},img/t0.png", *(f"{t}," for t in times[1:])]
+    (drive / "frames.csv").write_text("\n".join(rows) + "\n")
+    result = runner.invoke(app, ["map", str(drive), "-o", str(tmp_path / "m.json"),
+                                 "--observations", "images", "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert f"{drive / 'img' / 't0.png'}: " in result.stderr and "100 x 100" in result.stderr
     assert not (tmp_path / "m.json").exists()
 
 

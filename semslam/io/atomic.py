@@ -4,14 +4,64 @@ The data goes to a temporary file in the target's folder, is flushed and
 fsync'ed, then renamed over the target with ``os.replace`` (atomic on POSIX
 and Windows when both are on the same file system). If anything fails the
 target keeps its old content and the temporary file is removed.
+
+Within :func:`atomic_group`, the files written are renamed over their targets together
+at the end, so a command that writes several outputs (a map and the files beside it)
+replaces all of them or none.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
+from collections.abc import Iterator
+from contextvars import ContextVar
 from pathlib import Path
+
+_pending: ContextVar[list[tuple[Path, Path]] | None] = ContextVar("atomic_group", default=None)
+
+
+@contextlib.contextmanager
+def atomic_group() -> Iterator[None]:
+    """Defer the renames of every atomic write inside to the end of the block.
+
+    Each file is written in full to its temporary file as usual; only when the block ends
+    without an exception are they renamed over their targets, one after another. If the
+    block fails (or is interrupted), every target keeps its old content and the temporary
+    files are removed. Groups do not nest.
+    """
+    if _pending.get() is not None:
+        raise RuntimeError("atomic_group: groups do not nest")
+    pending: list[tuple[Path, Path]] = []
+    token = _pending.set(pending)
+    try:
+        yield
+    except BaseException:
+        _remove(tmp for tmp, _ in pending)
+        raise
+    finally:
+        _pending.reset(token)
+    folders = [target for _, target in pending if target.is_dir()]
+    if folders:  # found before any rename: all or none
+        _remove(tmp for tmp, _ in pending)
+        raise IsADirectoryError(errno.EISDIR, "is a folder, cannot write a file there",
+                                str(folders[0]))
+    for k, (tmp, target) in enumerate(pending):
+        try:
+            os.replace(tmp, target)
+        except BaseException:
+            _remove(tmp for tmp, _ in pending[k:])
+            raise
+    for folder in {target.parent for _, target in pending}:
+        _fsync_folder(folder)
+
+
+def _remove(paths) -> None:
+    for path in paths:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
@@ -30,11 +80,15 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     # O_EXCL: never clobber a stranger's file; mode 0o666 so the umask applies
     # as for an ordinary open().
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    group = _pending.get()
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        if group is not None:  # renamed at the end of the group
+            group.append((tmp, target))
+            return
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):

@@ -49,8 +49,8 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
 
     Raises:
         DriveFormatError: arrays of different lengths, NaN/infinity, an impossible
-            speed or yaw rate (see :func:`read_odometry`), or time not strictly
-            increasing; nothing is written.
+            speed or yaw rate (see :func:`read_odometry`), time not strictly
+            increasing, or a gap in the samples; nothing is written.
     """
     columns = {
         "t": np.asarray(odometry.t, dtype=float),
@@ -65,6 +65,7 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
     check_times(columns["t"], path, DriveFormatError, "sample")
+    _check_gaps(columns["t"], [f"sample {i}" for i in range(len(columns["t"]))], os.fspath(path))
     for column, (limit, _unit) in _LIMITS.items():
         over = np.flatnonzero(np.abs(columns[column]) > limit)
         if over.size:
@@ -87,7 +88,9 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
     Raises:
         DriveFormatError: missing or empty file, wrong header, wrong column
             count, a non-number, NaN/infinity, an impossible speed or yaw rate,
-            time not strictly increasing; e.g. ``odometry.csv line 17: speed is NaN``.
+            time not strictly increasing, or a gap in the samples (more than
+            :data:`MAX_GAP_PERIODS` median intervals and more than :data:`MIN_GAP_S`);
+            e.g. ``odometry.csv line 17: speed is NaN``.
     """
     name = os.fspath(path)
     header, rows = read_table(path, DriveFormatError)
@@ -103,7 +106,29 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
                 _refuse(where, column, float(data[i, j]))
         check_time_order(previous, data[i, 0], where, DriveFormatError)
         previous = data[i, 0]
+    _check_gaps(data[:, 0], [f"line {lineno}" for lineno, _ in rows], name)
     return Odometry(t=data[:, 0].copy(), speed=data[:, 1].copy(), yaw_rate=data[:, 2].copy())
+
+
+MAX_GAP_PERIODS = 10.0
+MIN_GAP_S = 1.0
+"""A gap in odometry.csv longer than both (median intervals, seconds) is refused: dead
+reckoning across it would be a guess, and the frames inside it would be placed wrong."""
+
+
+def _check_gaps(t: FloatArray, places: list, name: str) -> None:
+    """Refuse a gap; ``places`` names each sample (``line 17`` or ``sample 16``)."""
+    if len(t) < 3:
+        return
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    gaps = np.flatnonzero(dt > max(MAX_GAP_PERIODS * period, MIN_GAP_S))
+    if len(gaps):
+        k = int(gaps[0]) + 1
+        raise DriveFormatError(
+            f"{name} {places[k]}: {dt[k - 1]:.3f} s since the sample before (the median "
+            f"interval is {period:.3f} s): odometry is missing there"
+        )
 
 
 def _refuse(where: str, column: str, value: float) -> None:

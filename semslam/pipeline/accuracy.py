@@ -106,7 +106,7 @@ def predicted_accuracy(
         worst_stretches,
     )
     from semslam.io import load_map
-    from semslam.io.atomic import atomic_write_bytes, atomic_write_text
+    from semslam.io.atomic import atomic_group, atomic_write_bytes, atomic_write_text
     from semslam.io.tum import read_tum
     from semslam.plots import accuracy_figure
 
@@ -164,11 +164,11 @@ def predicted_accuracy(
         }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(
-        out / "accuracy_map.png",
-        accuracy_figure(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold),
-    )
-    atomic_write_text(out / "accuracy.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    picture = accuracy_figure(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold)
+    with atomic_group():  # both files or neither
+        atomic_write_bytes(out / "accuracy_map.png", picture)
+        atomic_write_text(out / "accuracy.json",
+                          json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "accuracy.json"), os.fspath(out / "accuracy_map.png")]
     return result
 

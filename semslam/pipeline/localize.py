@@ -72,6 +72,7 @@ def localize_drive(
 
     ``init``: "x,y,yaw", "auto", or None for the drive's declared start pose."""
     from semslam.io import Drive, load_map, write_tum
+    from semslam.io.atomic import atomic_group
     from semslam.io.track_csv import Track, write_track_csv
     from semslam.localization.localizer import Localizer
 
@@ -101,18 +102,17 @@ def localize_drive(
         )
     t = np.array([e.t for e in posed])
     poses = np.array([e.pose for e in posed])
-    write_tum(output, t, poses)
-    write_track_csv(
-        track_path,
-        Track(
-            t,
-            poses,
-            np.array([e.covariance for e in posed]),
-            tuple(e.status for e in posed),
-            np.array([e.associated for e in posed]),
-            np.array([e.rejected for e in posed]),
-        ),
+    track = Track(
+        t,
+        poses,
+        np.array([e.covariance for e in posed]),
+        tuple(e.status for e in posed),
+        np.array([e.associated for e in posed]),
+        np.array([e.rejected for e in posed]),
     )
+    with atomic_group():  # the trajectory and its track together, or neither
+        write_tum(output, t, poses)
+        write_track_csv(track_path, track)
     counts: dict[str, int] = {}
     for e in estimates:
         counts[e.status] = counts.get(e.status, 0) + 1

@@ -91,7 +91,7 @@ def build_map(
 ) -> MapSummary:
     """Map the drive at ``drive_folder`` and write ``map_path`` and its siblings."""
     from semslam.io import Drive, save_map, write_tum
-    from semslam.io.atomic import atomic_write_text
+    from semslam.io.atomic import atomic_group, atomic_write_text
     from semslam.io.g2o import write_g2o
     from semslam.mapping.export import to_pose_graph
     from semslam.mapping.mapper import Mapper
@@ -127,12 +127,15 @@ def build_map(
             "statistics": statistics,
         },
     )
-    save_map(map_path, semantic_map)
-    write_tum(_sibling(map_path, ".trajectory.tum"), result.keyframe_times, result.keyframe_poses)
-    write_g2o(_sibling(map_path, ".g2o"), to_pose_graph(replace(result, map=semantic_map)))
-    atomic_write_text(_sibling(map_path, ".audit.jsonl"), _audit_jsonl(result))
-    atomic_write_text(_sibling(map_path, ".audit.json"), _audit_by_slot(result))
-    atomic_write_text(_sibling(map_path, ".config.json"), config_to_json(config))
+    graph = to_pose_graph(replace(result, map=semantic_map))
+    with atomic_group():  # the six files replace the old ones together, or none does
+        save_map(map_path, semantic_map)
+        write_tum(_sibling(map_path, ".trajectory.tum"), result.keyframe_times,
+                  result.keyframe_poses)
+        write_g2o(_sibling(map_path, ".g2o"), graph)
+        atomic_write_text(_sibling(map_path, ".audit.jsonl"), _audit_jsonl(result))
+        atomic_write_text(_sibling(map_path, ".audit.json"), _audit_by_slot(result))
+        atomic_write_text(_sibling(map_path, ".config.json"), config_to_json(config))
     return MapSummary(
         map_path,
         drive.info.name,

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from semslam.config import SemslamConfig
-from semslam.errors import DriveError, FormatError, PerceptionError
+from semslam.errors import DriveError, FormatError, PerceptionError, SemslamError
 from semslam.pipeline.workers import process_pool
 from semslam.progress import progress_bar
 from semslam.types import FrameObservations
@@ -55,9 +55,10 @@ def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
         slots, markings, tags = (), (), ()
         if perception is not None and frames.images["topview"][i]:
             path = drive.image_path("topview", i)
+            image = read_image(path)  # names the file itself when it cannot be read
             try:
-                det = perception.detect(read_image(path))
-            except PerceptionError as e:  # name the image: the detector does not know it
+                det = perception.detect(image)
+            except SemslamError as e:  # name the image: the detector does not know it
                 raise PerceptionError(f"{path}: {e}") from None
             slots, markings = perception.slot_observations(det), det.markings
         if _WORKER["front"] and frames.images["front"][i]:

@@ -56,7 +56,7 @@ def plan_tags(
         resample_route,
     )
     from semslam.io import load_map
-    from semslam.io.atomic import atomic_write_bytes, atomic_write_text
+    from semslam.io.atomic import atomic_group, atomic_write_bytes, atomic_write_text
     from semslam.io.tum import read_tum
     from semslam.plots import tag_plan_figure
     from semslam.types import SemanticMap
@@ -118,8 +118,10 @@ def plan_tags(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     picture = tag_plan_figure(semantic_map, poses, steps, even, random)
-    atomic_write_bytes(out / "tag_plan.png", picture)
-    atomic_write_text(out / "tag_plan.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    with atomic_group():  # both files or neither
+        atomic_write_bytes(out / "tag_plan.png", picture)
+        atomic_write_text(out / "tag_plan.json",
+                          json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
     return result
 

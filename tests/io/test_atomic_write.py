@@ -49,3 +49,42 @@ def test_new_file_gets_ordinary_permissions(tmp_path: Path) -> None:
     umask = os.umask(0)
     os.umask(umask)
     assert target.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_a_group_replaces_all_its_files_at_the_end(tmp_path: Path) -> None:
+    from semslam.io.atomic import atomic_group
+
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    a.write_text("old a")
+    b.write_text("old b")
+    with atomic_group():
+        atomic_write_text(a, "new a")
+        assert a.read_text() == "old a"  # not yet
+        atomic_write_text(b, "new b")
+    assert (a.read_text(), b.read_text()) == ("new a", "new b")
+    assert sorted(os.listdir(tmp_path)) == ["a.txt", "b.txt"]
+
+
+def test_a_failed_or_interrupted_group_replaces_none(tmp_path: Path) -> None:
+    from semslam.io.atomic import atomic_group
+
+    a = tmp_path / "a.txt"
+    a.write_text("old a")
+    for error in (ValueError("broken"), KeyboardInterrupt()):
+        with pytest.raises(type(error)), atomic_group():
+            atomic_write_text(a, "new a")
+            raise error
+        assert a.read_text() == "old a" and os.listdir(tmp_path) == ["a.txt"]
+
+
+def test_a_group_with_a_folder_for_a_target_replaces_none(tmp_path: Path) -> None:
+    from semslam.io.atomic import atomic_group
+
+    a, folder = tmp_path / "a.txt", tmp_path / "b.txt"
+    a.write_text("old a")
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError) as err, atomic_group():
+        atomic_write_text(a, "new a")
+        atomic_write_text(folder, "new b")
+    assert err.value.filename == str(folder)
+    assert a.read_text() == "old a" and sorted(os.listdir(tmp_path)) == ["a.txt", "b.txt"]

@@ -212,6 +212,62 @@ def test_min_speed_above_max_speed_names_both(tmp_path: Path) -> None:
     _one_line(exc, "c.json", "simulation.drive", "min_speed (5)", "max_speed (1)")
 
 
+def test_a_semslam_variable_overrides_the_config_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "c.json"
+    path.write_text('{"mapping": {"keyframe_distance": 2, "keyframe_angle_deg": 4}}')
+    monkeypatch.setenv("SEMSLAM_MAPPING__KEYFRAME_DISTANCE", "3")
+    config = load_config(path)
+    assert (config.mapping.keyframe_distance, config.mapping.keyframe_angle_deg) == (3.0, 4.0)
+
+
+def test_a_value_is_blamed_on_a_variable_only_if_the_variable_holds_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from semslam.config import with_overrides
+
+    monkeypatch.setenv("SEMSLAM_MAPPING__OPTIMIZER", "none")
+    with pytest.raises(ConfigError) as exc:
+        with_overrides(load_config(), mapping={"optimizer": "bogus"})
+    _one_line(exc, "configuration: mapping.optimizer")
+    monkeypatch.setenv("SEMSLAM_MAPPING__OPTIMIZER", "bogus")
+    with pytest.raises(ConfigError) as exc:
+        load_config()
+    _one_line(exc, "SEMSLAM_MAPPING__OPTIMIZER: mapping.optimizer")
+
+
+def test_a_misspelt_section_in_a_semslam_variable_is_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("SEMSLAM_MAPING__KEYFRAME_DISTANCE", "2")
+    with pytest.raises(ConfigError) as exc:
+        load_config()
+    _one_line(exc, "SEMSLAM_MAPING__KEYFRAME_DISTANCE: no section 'maping'")
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (b"\xff\xfe{}", ["c.json: not UTF-8 text"]),
+        (b'{"mapping": {"calibration_walk": [-0.002, 2e-5]}}', ["calibration_walk", "sigmas >= 0"]),
+        (b'{"mapping": {"calibration_walk": [NaN, 1]}}', ["calibration_walk", "not a finite"]),
+        (b'{"simulation": {"observation_noise": {"detection_confidence_range": [0.9, 0.1]}}}',
+         ["detection_confidence_range", "0 <= low <= high <= 1"]),
+        (b'{"simulation": {"observation_noise": {"label_confidence_range": [-3, 5]}}}',
+         ["label_confidence_range", "0 <= low <= high <= 1"]),
+    ],
+)
+def test_config_files_that_would_break_a_run_later_are_refused(
+    tmp_path: Path, content: bytes, words: list[str]
+) -> None:
+    path = tmp_path / "c.json"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", *words)
+
+
 def test_a_frame_rate_that_does_not_divide_the_odometry_rate_is_refused(tmp_path: Path) -> None:
     """Frames fall on odometry samples: at 50 Hz odometry, 20 Hz frames would come at 25 Hz."""
     path = tmp_path / "c.json"

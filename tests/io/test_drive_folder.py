@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import make_map, write_drive
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from semslam.errors import DriveError, FormatError, MapError
@@ -30,13 +30,15 @@ from semslam.io import (
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(
-    st.lists(st.floats(-1e9, 1e9), min_size=1, max_size=30, unique=True),
+    st.floats(-1e6, 1e6),
+    st.lists(st.floats(0.01, 0.05), min_size=0, max_size=29),
     st.data(),
 )
 def test_odometry_round_trip_is_exact(
-    tmp_path: Path, times: list[float], data: st.DataObject
+    tmp_path: Path, start: float, steps: list[float], data: st.DataObject
 ) -> None:
-    t = np.sort(np.array(times))
+    t = start + np.concatenate([[0.0], np.cumsum(steps)])
+    assume(np.all(np.diff(t) > 0))
     n = len(t)
     speed = np.array(data.draw(st.lists(st.floats(-50, 50), min_size=n, max_size=n)))
     yaw_rate = np.array(data.draw(st.lists(st.floats(-3, 3), min_size=n, max_size=n)))
@@ -71,6 +73,11 @@ def _odometry_file(tmp_path: Path, body: str, header: str = "t,speed,yaw_rate") 
         ),
         ("0.5,1,0\n0.5,1,0\n", r"odometry\.csv line 3: time repeats \(0\.500\)"),
         ("", r"odometry\.csv: no data rows after the header"),
+        (
+            "0.0,1,0\n0.02,1,0\n0.04,1,0\n40.04,1,0\n40.06,1,0\n",
+            r"odometry\.csv line 5: 40\.000 s since the sample before \(the median interval "
+            r"is 0\.020 s\): odometry is missing there",
+        ),
     ],
 )
 def test_odometry_rejects(tmp_path: Path, body: str, message: str) -> None:
@@ -90,6 +97,13 @@ def test_odometry_wrong_header_and_empty_file(tmp_path: Path) -> None:
     path.write_text("")
     with pytest.raises(DriveFormatError, match=r"odometry\.csv: empty file"):
         read_odometry(path)
+
+
+def test_odometry_writer_refuses_a_gap(tmp_path: Path) -> None:
+    t = np.array([0.0, 0.02, 0.04, 40.04, 40.06])
+    with pytest.raises(DriveFormatError, match=r"sample 3: 40\.000 s since the sample before"):
+        write_odometry(tmp_path / "odometry.csv", Odometry(t, np.ones(5), np.zeros(5)))
+    assert not (tmp_path / "odometry.csv").exists()
 
 
 def test_odometry_writer_refuses(tmp_path: Path) -> None:
