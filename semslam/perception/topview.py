@@ -63,6 +63,9 @@ def _project(camera: Camera, vP: FloatArray) -> tuple[FloatArray, FloatArray, np
     return uv, theta, ok
 
 
+_MAX_ATLAS_PX = 32767
+"""``cv2.remap`` with a 16-bit fixed-point table reads a source narrower than this."""
+
 class TopviewBuilder:
     """Builds top views from a rig's camera images with one precomputed remap table.
 
@@ -105,6 +108,11 @@ class TopviewBuilder:
         self._sizes = [(int(c.size[0]), int(c.size[1])) for c in cams]
         self._offsets = np.concatenate([[0], np.cumsum([w for w, _ in self._sizes])]).astype(int)
         self._atlas_shape = (max(h for _, h in self._sizes), int(self._offsets[-1]))
+        if max(self._atlas_shape) >= _MAX_ATLAS_PX:  # OpenCV's fixed-point remap table
+            raise PerceptionError(
+                f"top view: the cameras' images side by side are {self._atlas_shape[1]} x "
+                f"{self._atlas_shape[0]} px; the remap takes less than {_MAX_ATLAS_PX} px a side"
+            )
 
         n = spec.size_px
         vv, uu = np.mgrid[0:n, 0:n].astype(np.float64)

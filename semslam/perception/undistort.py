@@ -44,7 +44,7 @@ def undistort_pixels(
     """(N, 2) raw pixels to the (N, 2) pixels an ideal pinhole camera with ``K`` sees."""
     K_, D_ = _checked(K, D, model)
     pts = np.asarray(uv, dtype=float).reshape(-1, 1, 2)
-    if not D_.any():
+    if not len(pts) or _identity(model, D_):
         return pts.reshape(-1, 2).copy()
     if model is CameraModel.FISHEYE:
         out = cv2.fisheye.undistortPoints(pts, K_, D_, P=K_, criteria=_CRITERIA)
@@ -59,7 +59,7 @@ def distort_pixels(
     """(N, 2) ideal pinhole pixels (same ``K``) to the (N, 2) raw pixels of the camera."""
     K_, D_ = _checked(K, D, model)
     pts = np.asarray(uv, dtype=float).reshape(-1, 2)
-    if not D_.any():
+    if not len(pts) or _identity(model, D_):
         return pts.copy()
     xy = (pts - K_[:2, 2]) / np.array([K_[0, 0], K_[1, 1]])  # normalised, skew ignored
     if model is CameraModel.FISHEYE:
@@ -68,6 +68,11 @@ def distort_pixels(
     obj = np.column_stack([xy, np.ones(len(xy))])
     out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), K_, D_)
     return np.asarray(out, dtype=float).reshape(-1, 2)
+
+
+def _identity(model: CameraModel, D: FloatArray) -> bool:
+    """A pinhole without distortion; a fisheye is never one (r = f theta even at D = 0)."""
+    return model is CameraModel.PINHOLE and not D.any()
 
 
 __all__ = ["distort_pixels", "undistort_pixels"]

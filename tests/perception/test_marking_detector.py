@@ -184,6 +184,17 @@ def test_presegmentation_keeps_only_lines_near_the_prior():
     assert det.detect(img, SPEC, prior_segments=np.zeros((0, 2, 2))) == ()
 
 
+
+def test_a_prior_a_kilometre_long_is_cut_to_the_view_not_bent():
+    img = floor(4)
+    paint(img, (1.0, -3.5), (4.0, -0.5), 0.15)  # a diagonal line
+    det = MarkingDetector()
+    d = np.array([1.0, 1.0]) / np.sqrt(2.0)
+    long_prior = np.array([[np.array([1.0, -3.5]) - 700 * d, np.array([4.0, -0.5]) + 700 * d]])
+    (obs,) = det.detect(img, SPEC, prior_segments=long_prior)
+    assert np.hypot(*(obs.vB - obs.vA)) > 3.5
+
+
 def test_mask_path_in_the_vehicle_frame():
     # 1 cm/px mask like the real garage drive: vehicle at (W/2, H/2), x forward = up
     H, W, mpp = 1200, 900, 0.01

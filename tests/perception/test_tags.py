@@ -199,6 +199,23 @@ def test_undistortion_round_trip(model: CameraModel, D: list[float]) -> None:
     assert np.abs(undistort_pixels(raw, Kf, D, model) - uv).max() < 1e-6
 
 
+def test_an_ideal_fisheye_still_distorts_and_no_points_are_no_points() -> None:
+    """A fisheye with D = 0 is the equidistant model (r = f theta), not a pinhole."""
+    Kf = np.array([[320.0, 0.0, 640.0], [0.0, 320.0, 400.0], [0.0, 0.0, 1.0]])
+    D = np.zeros(4)
+    uv = np.array([[1100.0, 399.5], [300.0, 650.0]])
+    expected = cv2.fisheye.undistortPoints(uv.reshape(-1, 1, 2), Kf, D, P=Kf).reshape(-1, 2)
+    np.testing.assert_allclose(undistort_pixels(uv, Kf, D, CameraModel.FISHEYE), expected,
+                               atol=1e-6)
+    assert np.abs(expected - uv).max() > 50.0
+    np.testing.assert_allclose(distort_pixels(expected, Kf, D, CameraModel.FISHEYE), uv,
+                               atol=1e-6)
+    for model, coefficients in ((CameraModel.FISHEYE, [0.05, 0.0, 0.0, 0.0]),
+                                (CameraModel.PINHOLE, [-0.1, 0.0, 0.0, 0.0, 0.0])):
+        for function in (undistort_pixels, distort_pixels):
+            assert function(np.zeros((0, 2)), Kf, coefficients, model).shape == (0, 2)
+
+
 def test_fisheye_tag_pose_from_distorted_corners() -> None:
     Kf = np.array([[330.0, 0.0, 640.0], [0.0, 330.0, 400.0], [0.0, 0.0, 1.0]])
     D = np.array([0.08, -0.02, 0.004, -0.001])

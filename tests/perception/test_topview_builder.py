@@ -252,3 +252,16 @@ def test_surround_rig_round_trips_through_rig_json() -> None:
         cam = loaded.cameras[name]
         assert cam.model is CameraModel.FISHEYE and cam.size == (960, 640)
         np.testing.assert_array_equal(cam.T_vehicle_camera, rig.cameras[name].T_vehicle_camera)
+
+
+def test_cameras_too_wide_for_one_remap_table_are_refused() -> None:
+    """Four 8800 px fisheyes side by side pass OpenCV's 16-bit remap table: refused in one
+    line, not read from the wrong place."""
+    from semslam.rig import Rig
+
+    base = surround_rig()
+    wide = default_fisheye_cameras(size=(8800, 5000))
+    rig = Rig(cameras={**base.cameras, **wide}, topview=base.topview, vehicle=base.vehicle)
+    with pytest.raises(PerceptionError, match=r"35200 x 5000 px; the remap takes less than"):
+        TopviewBuilder(rig)
+

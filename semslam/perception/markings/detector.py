@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from semslam.geometry import clip_segment
 from semslam.perception.markings.edges import edge_pixels, symmetry_centres, walk_range
 from semslam.perception.markings.params import (
     MASK_PARAMS,
@@ -64,7 +65,12 @@ def _prior_roi(
     px = spec.vehicle_to_pixel(seg.reshape(-1, 2)).reshape(-1, 2, 2)
     roi = np.zeros(shape, np.uint8)
     thick = max(1, int(round(2.0 * margin_m / spec.metres_per_px)))
-    for (u0, v0), (u1, v1) in np.clip(px, -1e4, 1e4):
+    reach = max(shape) + thick  # cut to the view and its margin; cutting keeps the direction
+    for a, b in px:
+        cut = clip_segment(a, b, -float(reach), float(reach))
+        if cut is None:
+            continue
+        (u0, v0), (u1, v1) = cut
         cv2.line(roi, (int(round(u0)), int(round(v0))), (int(round(u1)), int(round(v1))), 1, thick)
     return roi.astype(bool)
 
