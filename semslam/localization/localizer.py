@@ -235,7 +235,7 @@ class Localizer:
     def _contradicted(self, frame: FrameObservations) -> bool:
         """Does a global relocalization of this frame contradict the filter (twice in a row)?"""
         found = self.relocalizer.locate(self.recent.merged() or frame)
-        if found is None or (found.source == "tags" and self._failures == 0):
+        if found is None or (_one_tag(found) and self._failures == 0):
             # a tag alone does not overrule a filter whose updates pass: a tag that moved,
             # or a misdetection, must not teleport a car that is tracking well
             return False
@@ -245,8 +245,8 @@ class Localizer:
     def _try_relocalize(self, frame, status_if_not, applied=0, rejected=0, update_ms=0.0):
         found = self.relocalizer.locate(self.recent.merged() or frame)
         if found is None or (
-            self.initialized and found.source == "tags" and not self._plausible(found)
-        ):  # once tracking has begun, a far jump needs slots to back it, not one tag alone
+            self.initialized and _one_tag(found) and not self._plausible(found)
+        ):  # once tracking has begun, a far jump needs slots or tags to back it, not one tag
             return self._estimate(status_if_not, applied, rejected, update_ms)
         self._reset(found.mTv, found.covariance)
         return self._estimate(RELOCALIZED, applied, rejected, update_ms)
@@ -306,3 +306,9 @@ def _positive_part(a: float, b: float, c: float) -> tuple[float, float, float]:
     # high * v v^T, with v v^T = (A - low I) / (high - low)
     scale = high / (high - low)
     return scale * (a - low), scale * b, scale * (c - low)
+
+
+def _one_tag(found) -> bool:
+    """A global fix from one tag alone (no slot, no second tag agreeing)."""
+    return found.source == "tags" and found.tags_used < 2
+

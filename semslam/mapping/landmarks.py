@@ -30,11 +30,17 @@ class SlotLandmark:
 
     def best_label(self) -> tuple[str | None, float]:
         """(label, share of the votes it holds); (None, 0) without votes."""
-        if not self.votes:
-            return None, 0.0
-        label = max(self.votes, key=lambda k: self.votes[k])
-        total = sum(self.votes.values())
-        return label, self.votes[label] / total if total > 0 else 0.0
+        return best_label(self.votes)
+
+
+def best_label(votes: dict[str, float]) -> tuple[str | None, float]:
+    """(label, share of the votes it holds) of label -> summed confidence; (None, 0)
+    without votes."""
+    if not votes:
+        return None, 0.0
+    label = max(votes, key=lambda k: votes[k])
+    total = sum(votes.values())
+    return label, votes[label] / total if total > 0 else 0.0
 
 
 def mean_corner_distance(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -165,16 +171,19 @@ class SlotLandmarks:
         for i, a in enumerate(nearby):
             if a.index in taken:
                 continue
+            votes = defaultdict(float, a.votes)  # a's and those it absorbs here
             d = mean_corner_distance(a.corners, stack[i + 1 :])
             for j in np.flatnonzero(d < distance):
                 b = nearby[i + 1 + j]
                 if b.index in taken or b.kind != a.kind:
                     continue
-                (la, ca), (lb, cb) = a.best_label(), b.best_label()
+                (la, ca), (lb, cb) = best_label(votes), b.best_label()
                 if la is not None and lb is not None and la != lb and min(ca, cb) > 0.5:
                     continue
                 pairs.append((a.index, b.index))
                 taken.add(b.index)
+                for label, weight in b.votes.items():
+                    votes[label] += weight
         return pairs
 
 

@@ -95,10 +95,13 @@ class IdLoopClosure:
         shift = math.hypot(*(moved[seed, :2] - np.asarray(pose, float)[:2]))
         if shift <= self.distance and abs(wrap_angle(moved[seed, 2] - pose[2])) <= self.yaw:
             return []  # the readings agree with the current pose
-        # a rival correction (the identity among them) with half the support: no closure
-        for other_score, _, j in clusters:
-            apart = math.hypot(*(moved[j, :2] - moved[seed, :2])) > 2 * self.distance
-            if apart and 2 * other_score >= score:
+        # a rival correction (the identity among them) with half the support from votes
+        # outside the chosen cluster: no closure (whichever of two equals came first)
+        inside = {id(v) for v in chosen}
+        for _, members, _ in clusters:
+            rest = [v for v in members if id(v) not in inside]
+            rival = min(len({v.landmark for v in rest}), len({v.label for v in rest}))
+            if 2 * rival >= score:
                 return []
         self.votes = []
         self.closures += 1

@@ -123,6 +123,16 @@ def test_a_frame_before_the_first_odometry_sample_is_refused(sim):
         loc.step(FrameObservations(float(rec.t[0])))
 
 
+def test_two_agreeing_tags_correct_a_wrong_start_where_no_slot_is_used(sim):
+    """Tags only, the start 6 m off: a fix from two agreeing tags may move the car far,
+    where one tag alone may not."""
+    start = sim.frame_poses[0] + np.array([6.0, 0.0, 0.0])
+    _, estimates = _run(sim, initial=start, use_slots=False, use_markings=False)
+    pos, _ = _errors(sim, estimates)
+    assert "relocalized" in {e.status for e in estimates}
+    assert pos[-1] < 0.5
+
+
 def test_a_frame_with_only_a_tag_updates_the_filter(sim):
     frame, tag = next((f, t) for f in sim.exact for t in f.tags if np.hypot(*t.vTt[:2]) < 15)
     only_tag = FrameObservations(frame.t, (), (tag,), ())

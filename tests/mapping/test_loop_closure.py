@@ -89,3 +89,24 @@ def test_a_few_agreeing_among_many_scattered_votes_is_no_closure():
     for landmark in (20, 21, 22):
         closure.vote(_vote(9, landmark, [6.0, 6.0, 0.0]))
     assert closure.consensus(10, POSE) == []
+
+
+def _two_camps(first, second, pose):
+    """Three IDs vote for ``first``, three others for ``second``; both orders of voting."""
+    outcomes = []
+    for camps in ((first, second), (second, first)):
+        lc = IdLoopClosure(window=20, support=3, distance=0.5, yaw_deg=3.0)
+        for n in range(6):
+            correction, name = camps[n // 3], f"{'AB'[n // 3]}{n}"
+            lc.vote(ClosureVote(10, n, n, name, np.asarray(correction, float)))
+        outcomes.append(lc.consensus(10, pose))
+    return outcomes
+
+
+def test_an_equally_supported_rival_stops_a_closure_whichever_voted_first():
+    """A rival that differs only in heading, or by 0.8 m (between one and two cluster
+    radii), is a rival: no closure, in either order."""
+    pose = np.array([10.0, 5.0, 0.3])
+    turned = compose(compose(pose, [0.0, 0.0, math.radians(5.0)]), inverse(pose))
+    for rival in (turned, np.array([0.8, 0.0, 0.0])):
+        assert _two_camps(rival, np.zeros(3), pose) == [[], []]
