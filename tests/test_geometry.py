@@ -119,6 +119,21 @@ def test_wrap_angle_of_a_float_is_the_array_arithmetic():
     np.testing.assert_array_equal(one_by_one, wrap_angle(angles))
 
 
+def test_poses_and_points_compose_as_worked_out_by_hand():
+    """A car at (1, 2) facing +y (yaw 90 deg): 1 m ahead of it is (1, 3), 1 m to its left
+    (vehicle +y) is (0, 2); seen from it, the map point (1, 5) is 3 m straight ahead."""
+    car = np.array([1.0, 2.0, math.pi / 2])
+    np.testing.assert_allclose(compose(car, [1.0, 0.0, 0.0]), [1.0, 3.0, math.pi / 2],
+                               atol=1e-12)
+    np.testing.assert_allclose(transform_points(car, [[1.0, 0.0], [0.0, 1.0]]),
+                               [[1.0, 3.0], [0.0, 2.0]], atol=1e-12)
+    np.testing.assert_allclose(inverse_transform_points(car, [[1.0, 5.0]]), [[3.0, 0.0]],
+                               atol=1e-12)
+    np.testing.assert_allclose(inverse(car), [-2.0, 1.0, -math.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(between(car, [1.0, 5.0, math.pi]), [3.0, 0.0, math.pi / 2],
+                               atol=1e-12)
+
+
 def test_wrap_angle_keeps_an_angle_an_ulp_above_pi_at_pi():
     above = math.nextafter(math.pi, 4.0)
     assert wrap_angle(above) == math.pi

@@ -1,5 +1,7 @@
 """The pictures come out as PNG images with the map and the trajectory in them."""
 
+from dataclasses import replace
+
 import numpy as np
 
 from semslam.plots import audit_figure, error_figure, map_figure, trajectory_figure
@@ -30,3 +32,21 @@ def test_every_picture_is_a_png():
         audit_figure(rows, per_slot),
     ):
         assert data.startswith(PNG) and len(data) > 5000
+
+
+def _has_colour(png: bytes, hex_rgb: str, tolerance: int = 12) -> bool:
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    bgr = np.array([int(hex_rgb[i : i + 2], 16) for i in (5, 3, 1)])
+    return bool((np.abs(image.astype(int) - bgr).max(axis=2) <= tolerance).sum() > 20)
+
+
+def test_the_map_picture_draws_the_mapped_slot_over_the_true_one():
+    """The map in its blue, the truth under it in green: both drawn, not empty axes."""
+    truth = _map()
+    shifted = SemanticMap(tuple(replace(s, corners=s.corners + 1.0) for s in truth.slots))
+    png = map_figure(shifted, truth)
+    assert _has_colour(png, "#1f4e9c") and _has_colour(png, "#a6dba0")
+    assert not _has_colour(map_figure(SemanticMap(), None), "#1f4e9c")
+

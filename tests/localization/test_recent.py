@@ -36,7 +36,6 @@ def test_old_frames_leave_the_window():
 def test_a_tag_seen_before_a_turn_moves_with_its_covariance_turned_whole():
     """The car turns 90 deg left between the sighting and the newest frame: the sighting's
     pose and its covariance, cross terms too, are the same tag seen from the new pose."""
-    from semslam.geometry import between, compose, rotate_pose_covariance
     from semslam.types import TagObservation
 
     cov = np.array([[0.01, 0.0, 0.001], [0.0, 1e-4, 0.0], [0.001, 0.0, 1e-4]])
@@ -46,8 +45,11 @@ def test_a_tag_seen_before_a_turn_moves_with_its_covariance_turned_whole():
     now = np.array([2.0, 1.0, np.pi / 2])
     recent.add(now, FrameObservations(1.0, (), (), ()))
     (moved,) = recent.merged().tags
-    nowTv = between(now, np.zeros(3))
-    np.testing.assert_allclose(moved.vTt, compose(nowTv, tag.vTt), atol=1e-12)
-    np.testing.assert_allclose(moved.covariance, rotate_pose_covariance(cov, -np.pi / 2),
-                               atol=1e-15)
+    # worked out by hand: the tag at (5, 1) in the old frame is 3 m ahead of the old origin
+    # and 1 m to the right of the new car at (2, 1) facing +y: (0, -3), yaw 3 - pi/2
+    np.testing.assert_allclose(moved.vTt, [0.0, -3.0, 3.0 - np.pi / 2], atol=1e-12)
+    # turned by -90 deg: the old x (variance 0.01) is the new -y; the x-yaw covariance
+    # 0.001 becomes a y-yaw covariance of -0.001
+    expected = np.array([[1e-4, 0.0, 0.0], [0.0, 0.01, -0.001], [0.0, -0.001, 1e-4]])
+    np.testing.assert_allclose(moved.covariance, expected, atol=1e-15)
     assert np.linalg.eigvalsh(moved.covariance).min() > 0

@@ -36,6 +36,17 @@ def test_detections_of_the_same_slot_average_and_sharpen():
     assert fused.label == primary.label and fused.kind == primary.kind
 
 
+def test_the_closest_detections_are_the_ones_averaged():
+    """Four others 0.04-0.16 m off, room for two: the mean of the primary and the two
+    closest, whatever order they come in."""
+    offsets = [0.16, 0.04, 0.12, 0.08]
+    others = [_obs(SLOT + [d, 0.0]) for d in offsets]
+    fused, count = fuse_detection(_obs(SLOT), others, radius=0.3, max_count=3)
+    assert count == 3
+    np.testing.assert_allclose(fused.vCorners, SLOT + [(0.0 + 0.04 + 0.08) / 3, 0.0],
+                               atol=1e-12)
+
+
 def test_other_slots_and_other_kinds_are_not_fused():
     neighbour = _obs(SLOT + [0.0, 2.5])
     slanted = _obs(SLOT + 0.02, kind=SlotKind.SLANTED)
