@@ -280,10 +280,14 @@ def bench_sim(
 
 
 def _width_errors(data: list[SimView], outputs: list) -> dict:
-    """Detected minus true width of correct detections (median, p90 of |error|)."""
+    """Detected minus true width of correct detections (:func:`score_view`'s ends and
+    angle tests; median, p90 of |error|)."""
     err = []
     for v, obs in zip(data, outputs, strict=True):
-        for o in obs:
+        correct = score_view(obs, v).correct
+        for o, ok in zip(obs, correct, strict=True):
+            if not ok:
+                continue
             mid = 0.5 * (o.vA + o.vB)[None]
             d = _point_segment_distance(mid, v.segments[:, 0], v.segments[:, 1])[0]
             if len(d) and d.min() <= MATCH_DIST_M:

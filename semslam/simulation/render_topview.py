@@ -59,8 +59,10 @@ class TopviewAnnotation:
             the slot's corners[0] and corners[1]; type 1 perpendicular, 2 parallel,
             3 slanted; angle between entrance line and separator in degrees (90 unless
             slanted).
-        ids: per visible painted label: (slot_id, label, (4, 2) pixel corners of the
-            text's rotated box: bottom-left, bottom-right, top-right, top-left as read).
+        ids: per painted label in full view (inside the image, clear of the ego box, no
+            car, pillar or wall drawn over its box): (slot_id, label, (4, 2) pixel corners
+            of the text's rotated box: bottom-left, bottom-right, top-right, top-left as
+            read).
     """
 
     points: FloatArray
@@ -121,6 +123,24 @@ def _clip_convex(
                 res.append((px + (qx - px) * t, py + (qy - py) * t))
         out = res
     return out
+
+
+def _covered(points: np.ndarray, polys: list[np.ndarray]) -> np.ndarray:
+    """(N,) bool: which pixel ``points`` (N, 2) lie strictly inside one of the drawn
+    ``polys`` (pixel polygons of cars, pillars, walls)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    covered = np.zeros(len(points), bool)
+    if not len(points) or not polys:
+        return covered
+    lo = np.array([poly.min(axis=0) for poly in polys])
+    hi = np.array([poly.max(axis=0) for poly in polys])
+    cand = ((points[:, None, :] >= lo[None]) & (points[:, None, :] <= hi[None])).all(axis=2)
+    for i, k in zip(*np.nonzero(cand), strict=True):
+        if not covered[i] and cv2.pointPolygonTest(
+            polys[k], (float(points[i, 0]), float(points[i, 1])), False
+        ) > 0:
+            covered[i] = True
+    return covered
 
 
 def _fixed(p: np.ndarray) -> np.ndarray:
@@ -854,20 +874,7 @@ class TopviewRenderer:
         a = self._pt_dir[sel] - mTv[2]  # direction in the vehicle frame
         # image u = -y_v, v = -x_v  =>  atan2(dv, du) = atan2(-cos a, -sin a)
         directions = np.arctan2(-np.cos(a), -np.sin(a))
-        occluded = np.zeros(len(points), bool)
-        if len(points) and polys:
-            lo = np.array([poly.min(axis=0) for poly in polys])
-            hi = np.array([poly.max(axis=0) for poly in polys])
-            cand = ((points[:, None, :] >= lo[None]) & (points[:, None, :] <= hi[None])).all(axis=2)
-            for i, k in zip(*np.nonzero(cand), strict=True):
-                if (
-                    not occluded[i]
-                    and cv2.pointPolygonTest(
-                        polys[k], (float(points[i, 0]), float(points[i, 1])), False
-                    )
-                    > 0
-                ):
-                    occluded[i] = True
+        occluded = _covered(points, polys)
         index = np.full(len(self._pts) + 1, 0, int)  # world point -> 1-based annotation index
         index[sel] = np.arange(1, len(sel) + 1)
         ij = index[self._slot_pts]  # (-1 maps to the last entry, which stays 0)
@@ -890,6 +897,8 @@ class TopviewRenderer:
             (bx0, by0), (bx1, by1) = box.min(axis=0), box.max(axis=0)
             if bx1 >= u0 - 0.5 and bx0 <= u1 - 0.5 and by1 >= v0 - 0.5 and by0 <= v1 - 0.5:
                 continue  # touches the ego box (conservative: its bounding box)
+            if _covered(np.vstack([box, box.mean(axis=0)]), polys).any():
+                continue  # a car, pillar or wall drawn over part of it
             slot_id, label, _ = self._labels[i]
             ids.append((slot_id, label, box))
         return TopviewAnnotation(

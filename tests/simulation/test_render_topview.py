@@ -170,3 +170,26 @@ def test_a_line_longer_than_the_view_is_drawn_where_the_car_is_beside_its_middle
     u, v = np.round(along).astype(int).T
     brighter = with_line[v, u].astype(float).mean(axis=1) - without[v, u].astype(float).mean(axis=1)
     assert (brighter > 30).all(), brighter
+
+
+def test_no_painted_id_under_a_parked_car_is_labelled_in_view():
+    """The annotation's IDs are those a reader could see: none whose box has a car over it
+    (a car parked over its slot's number hides it; 54 of 143 were counted before)."""
+    import cv2
+
+    from semslam.simulation.topview_samples import sample_topviews
+    from semslam.simulation.world import make_world
+
+    labelled = 0
+    for sample in sample_topviews(range(0, 4), 5, seed=20261122):
+        world = make_world(sample.preset, sample.world_seed)
+        renderer = TopviewRenderer(world)
+        P = renderer._world_to_pixel(sample.mTv)
+        cars = [renderer._apply(P, c.footprint).astype(np.float32) for c in world.parked_cars]
+        for _, _, box in sample.annotation.ids:
+            labelled += 1
+            for point in (*np.asarray(box, float), np.asarray(box, float).mean(axis=0)):
+                assert all(cv2.pointPolygonTest(car, (float(point[0]), float(point[1])), False)
+                           <= 0 for car in cars)
+    assert labelled > 10
+
