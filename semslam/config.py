@@ -202,7 +202,6 @@ class MappingConfig(_Section):
     calibration_walk: tuple[float, float] = Field(
         (0.002, 2e-5), description="random walk of (scale, bias) from one window to the next"
     )
-
     tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
     slot_corner_sigma_min: float = Field(0.02, gt=0, description="floor on corner sigma, m")
     id_confidence_high: float = Field(
