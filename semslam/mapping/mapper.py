@@ -349,9 +349,9 @@ class Mapper:
     def _add_marking(self, k: int, obs: MarkingObservation) -> None:
         """Associate a detected line piece with a line landmark (or start one)."""
         vE = np.array([obs.vA, obs.vB], dtype=float)
-        if (
-            obs.confidence < self.cfg.marking_min_confidence
-            or np.linalg.norm(vE[1] - vE[0]) < self.cfg.marking_min_length
+        if not (  # written so that a NaN end point is left out, as the localizer does
+            obs.confidence >= self.cfg.marking_min_confidence
+            and np.linalg.norm(vE[1] - vE[0]) >= self.cfg.marking_min_length
         ):
             return
         self.marking_detections.append((k, vE, float(obs.width), float(obs.confidence)))

@@ -302,3 +302,15 @@ def test_the_g2o_export_carries_each_slot_factors_own_information(small):
         checked += 1
         differs += not math.isclose(s.sigma, s.observation.corner_sigma)
     assert checked > 20 and differs > 0
+
+
+def test_a_line_detection_with_a_nan_end_is_left_out(small):
+    """As the localizer does: a detection of no length is no line (a NaN end point crashed
+    the line landmarks' spatial hash)."""
+    from semslam.types import MarkingObservation
+
+    bad = MarkingObservation(np.array([1.0, 2.0]), np.array([np.nan, -2.0]), 0.12, 0.9)
+    frames = [dataclasses.replace(f, markings=(*f.markings, bad)) for f in small.exact[:200]]
+    result = _map(small, frames)
+    assert all(np.isfinite([m.a, m.b]).all() for m in result.map.markings)
+
