@@ -9,8 +9,11 @@ g2o). Here the Values is always one of ours, passed by reference.
 The loop: linearise, add damping ``lambda I`` as unit Jacobian factors on every variable,
 solve (gtsam's elimination, COLAMD), retract; keep the step only if the nonlinear error
 does not rise (so max-mixtures' switching is judged on the true error), then lambda / 10,
-else lambda x 10 and solve again. Stops after ``max_iterations``, when no lambda up to 1e10
-lowers the error, or when a kept step lowers it by at most ``relative_tolerance`` of it.
+else lambda x 10 and solve again. A damped system that gtsam finds indeterminate (a tiny
+lambda on an ill-conditioned graph: the odometry's information across the car reaches
+1e9) is a failed step too, as in gtsam's own optimizer: lambda x 10. Stops after
+``max_iterations``, when no lambda up to 1e10 lowers the error, or when a kept step lowers
+it by at most ``relative_tolerance`` of it.
 """
 
 from __future__ import annotations
@@ -45,7 +48,8 @@ def levenberg_marquardt(
         dims: tangent dimension per key (default: from ``values``).
 
     Raises:
-        RuntimeError: gtsam found the damped system indeterminate (its own exception).
+        RuntimeError: gtsam found the damped system indeterminate at every lambda up to
+            :data:`MAX_LAMBDA` (its own exception).
     """
     dims = tangent_dimensions(values) if dims is None else dims
     unit = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
@@ -61,7 +65,13 @@ def levenberg_marquardt(
                 damped.add(
                     gtsam.JacobianFactor(key, np.eye(dim) * np.sqrt(lam), np.zeros(dim), unit[dim])
                 )
-            candidate = values.retract(damped.optimize())
+            try:
+                candidate = values.retract(damped.optimize())
+            except RuntimeError:  # gtsam's indeterminate system: damp more
+                if lam * 10.0 > MAX_LAMBDA:
+                    raise
+                lam *= 10.0
+                continue
             new_error = factors.error(candidate)
             if new_error <= error:
                 break
