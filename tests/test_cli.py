@@ -129,6 +129,23 @@ def test_simulate_refuses_a_folder_with_other_files(tmp_path):
     assert (tmp_path / "precious.txt").read_text() == "keep me"
 
 
+def test_simulate_refuses_to_replace_a_drive_holding_a_users_files(small_drive, tmp_path):
+    import shutil
+
+    drive = shutil.copytree(small_drive, tmp_path / "d")
+    (drive / "mymap.json").write_text("keep me")
+    result = _run("simulate", drive, "--preset", "small", "--seed", "4", "--no-images",
+                  "--no-progress")
+    assert result.exit_code == 2, result.output
+    assert "also holds mymap.json" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert (drive / "mymap.json").read_text() == "keep me"
+    (drive / "mymap.json").unlink()  # a drive folder with only a drive's files is replaced
+    again = _run("simulate", drive, "--preset", "small", "--seed", "4", "--no-images",
+                 "--no-progress")
+    assert again.exit_code == 0, again.output
+
+
 def test_broken_config_file_is_one_line_error(tmp_path):
     cfg = tmp_path / "c.json"
     cfg.write_text('{"simulation": {"drive": {"max_speed": -1}}}')

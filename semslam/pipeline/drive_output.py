@@ -10,10 +10,18 @@ from pathlib import Path
 
 from semslam.errors import SemslamError
 
+DRIVE_ENTRIES = frozenset({
+    "config.json", "drive.json", "frames.csv", "groundtruth.tum", "images", "labels", "masks",
+    "observations", "odometry.csv", "rig.json", "vector_map.json", "world.json",
+})
+"""What ``semslam simulate`` and ``semslam import`` write in a drive folder."""
+
 
 def prepare_drive_folder(out_dir: Path, error: type[SemslamError]) -> Path:
     """A fresh temporary folder beside ``out_dir``; ``error`` (one line) when ``out_dir``
-    is a file, or a non-empty folder that holds no drive (it is never overwritten)."""
+    is a file, a non-empty folder that holds no drive, or a drive folder that also holds
+    files of the user's (a map written into it, say): a new drive replaces the whole folder,
+    so it is never written over those."""
     out_dir = Path(out_dir).resolve()
     if out_dir.exists():
         if not out_dir.is_dir():
@@ -21,6 +29,13 @@ def prepare_drive_folder(out_dir: Path, error: type[SemslamError]) -> Path:
         if any(out_dir.iterdir()) and not (out_dir / "drive.json").exists():
             raise error(
                 f"{out_dir}: folder is not empty and holds no drive; choose another output folder"
+            )
+        other = sorted(p.name for p in out_dir.iterdir() if p.name not in DRIVE_ENTRIES)
+        if other:
+            shown = ", ".join(other[:3]) + (", ..." if len(other) > 3 else "")
+            raise error(
+                f"{out_dir}: the drive there also holds {shown}, which a new drive would "
+                "delete; move them or choose another output folder"
             )
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
