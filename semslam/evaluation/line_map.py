@@ -16,6 +16,7 @@ the reference map is made of. Pure numpy, map frame, metres.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -88,12 +89,10 @@ class LineMapComparison:
 def _stats(d: FloatArray, tolerance: float) -> DirectionStats:
     if len(d) == 0:
         return DirectionStats(0, float("nan"), float("nan"), float("nan"), float("nan"))
-    # infinite distances (nothing on the other side) stay infinite: interpolating between
-    # two infinities gives NaN, so each statistic is an order statistic of d
-    s = np.sort(d)
-    median = float(np.median(d)) if np.isfinite(s[len(s) // 2]) else float("inf")
-    p95 = float(np.percentile(d, 95)) if np.isfinite(s[-1]) else float(
-        s[min(len(s) - 1, int(np.ceil(0.95 * (len(s) - 1))))])
+    with np.errstate(invalid="ignore"):  # infinite distances (nothing on the other side)
+        median, p95 = float(np.median(d)), float(np.percentile(d, 95))
+    # interpolating between two infinite distances gives NaN: the statistic is infinite
+    median, p95 = (math.inf if math.isnan(v) else v for v in (median, p95))
     return DirectionStats(
         int(len(d)),
         median,

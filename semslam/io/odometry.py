@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,7 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
     check_times(columns["t"], path, DriveFormatError, "sample")
-    _check_gaps(columns["t"], [f"sample {i}" for i in range(len(columns["t"]))], os.fspath(path))
+    _check_gaps(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
     for column, (limit, _unit) in _LIMITS.items():
         over = np.flatnonzero(np.abs(columns[column]) > limit)
         if over.size:
@@ -106,7 +107,7 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
                 _refuse(where, column, float(data[i, j]))
         check_time_order(previous, data[i, 0], where, DriveFormatError)
         previous = data[i, 0]
-    _check_gaps(data[:, 0], [f"line {lineno}" for lineno, _ in rows], name)
+    _check_gaps(data[:, 0], lambda k: f"{name} line {rows[k][0]}")
     return Odometry(t=data[:, 0].copy(), speed=data[:, 1].copy(), yaw_rate=data[:, 2].copy())
 
 
@@ -116,8 +117,8 @@ MIN_GAP_S = 1.0
 reckoning across it would be a guess, and the frames inside it would be placed wrong."""
 
 
-def _check_gaps(t: FloatArray, places: list, name: str) -> None:
-    """Refuse a gap; ``places`` names each sample (``line 17`` or ``sample 16``)."""
+def _check_gaps(t: FloatArray, where: Callable[[int], str]) -> None:
+    """Refuse a gap; ``where(k)`` names sample ``k`` (``odometry.csv line 17``)."""
     if len(t) < 3:
         return
     dt = np.diff(t)
@@ -126,7 +127,7 @@ def _check_gaps(t: FloatArray, places: list, name: str) -> None:
     if len(gaps):
         k = int(gaps[0]) + 1
         raise DriveFormatError(
-            f"{name} {places[k]}: {dt[k - 1]:.3f} s since the sample before (the median "
+            f"{where(k)}: {dt[k - 1]:.3f} s since the sample before (the median "
             f"interval is {period:.3f} s): odometry is missing there"
         )
 

@@ -311,4 +311,3 @@ def _positive_part(a: float, b: float, c: float) -> tuple[float, float, float]:
 def _one_tag(found) -> bool:
     """A global fix from one tag alone (no slot, no second tag agreeing)."""
     return found.source == "tags" and found.tags_used < 2
-

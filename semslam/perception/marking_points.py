@@ -228,14 +228,7 @@ class MarkingPointDetector:
         check_entrance: bool = True,
     ) -> None:
         self.check_entrance = check_entrance
-        if model_path is None:
-            paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
-        elif isinstance(model_path, (list, tuple)):
-            paths = [Path(p) for p in model_path]
-        else:
-            paths = [Path(model_path)]
-        if not paths:
-            raise PerceptionError("marking points: no model given")
+        paths = onnx_model.model_paths(model_path, DEFAULT_MODELS, "marking points")
         self.paths = paths
         self.path = paths[0]
         self.verifier = PointVerifier(verifier_path) if verify else None

@@ -20,6 +20,24 @@ def model_path(name: str) -> Path:
     return Path(str(resources.files("semslam").joinpath("models", name)))
 
 
+def model_paths(given, defaults: tuple[str, ...], what: str) -> list[Path]:
+    """The model files a detector is given: one path, a list or tuple of them, or None
+    for the shipped files ``defaults``.
+
+    Raises:
+        PerceptionError: an empty list (``what`` names the detector).
+    """
+    if given is None:
+        paths = [model_path(name) for name in defaults]
+    elif isinstance(given, (list, tuple)):
+        paths = [Path(p) for p in given]
+    else:
+        paths = [Path(given)]
+    if not paths:
+        raise PerceptionError(f"{what}: no model given")
+    return paths
+
+
 def load_session(path: str | os.PathLike[str]):
     """An onnxruntime session on one CPU thread for the model at ``path``.
 
@@ -45,4 +63,4 @@ def load_session(path: str | os.PathLike[str]):
         raise PerceptionError(f"{path}: not a loadable ONNX model ({first})") from None
 
 
-__all__ = ["load_session", "model_path"]
+__all__ = ["load_session", "model_path", "model_paths"]

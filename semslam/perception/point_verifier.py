@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -147,14 +146,7 @@ class PointVerifier:
         mirror_look: bool = True,
     ) -> None:
         self.mirror_look = mirror_look
-        if model_path is None:
-            self.paths = [onnx_model.model_path(name) for name in DEFAULT_MODELS]
-        elif isinstance(model_path, (list, tuple)):
-            self.paths = [Path(p) for p in model_path]
-        else:
-            self.paths = [Path(model_path)]
-        if not self.paths:
-            raise PerceptionError("point verifier: no model given")
+        self.paths = onnx_model.model_paths(model_path, DEFAULT_MODELS, "point verifier")
         self._sessions = [onnx_model.load_session(p) for p in self.paths]
         for path, session in zip(self.paths, self._sessions, strict=True):
             inp, out = session.get_inputs()[0], session.get_outputs()[0]

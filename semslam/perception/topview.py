@@ -66,6 +66,7 @@ def _project(camera: Camera, vP: FloatArray) -> tuple[FloatArray, FloatArray, np
 _MAX_ATLAS_PX = 32767
 """``cv2.remap`` with a 16-bit fixed-point table reads a source narrower than this."""
 
+
 class TopviewBuilder:
     """Builds top views from a rig's camera images with one precomputed remap table.
 
