@@ -71,6 +71,13 @@ class MapMetrics:
         corner_rmse_m: RMSE of the corner errors of matched slots (4 per pair).
         corner_p95_m: 95th percentile of those corner errors.
         corner_max_m: largest of them.
+        corner_nees_mean: mean over the corners of matched slots of the squared
+            error in the metric of the corner covariance the map exports
+            (``e^T C^-1 e``, 2 degrees of freedom): 2 when the map knows its own
+            error, above when it is too sure. Corners whose covariance is not
+            positive definite (a map without covariances) are left out.
+        corner_nees_median: median of the same (1.39 for a consistent map).
+        corner_nees_corners: how many corners they were computed over.
         id_accuracy: fraction of matched slots whose label equals the true
             label; an estimated label None counts as wrong.
         id_labelled: matched slots whose estimated label is not None.
@@ -103,6 +110,9 @@ class MapMetrics:
     corner_rmse_m: float
     corner_p95_m: float
     corner_max_m: float
+    corner_nees_mean: float
+    corner_nees_median: float
+    corner_nees_corners: int
     id_accuracy: float
     id_labelled: int
     id_accuracy_labelled: float
@@ -214,10 +224,21 @@ def _match_slots(est: FloatArray, true: FloatArray, radius: float) -> _SlotMatch
 
 
 def _ordered(est: FloatArray, match: _SlotMatch) -> FloatArray:
-    """Corners of the matched estimated slots in the order that corresponds to the truth."""
+    """Corners of the matched estimated slots (or any (N, 4, ...) per-corner array of the
+    estimate) in the order that corresponds to the truth."""
     corners = est[match.est]
     corners[match.reversed] = corners[match.reversed][:, REVERSED_ORDER]
     return corners
+
+
+def _corner_nees(errors: FloatArray, covariances: FloatArray) -> FloatArray:
+    """``e^T C^-1 e`` of each corner error ``errors`` (N, 2) under its covariance (N, 2, 2),
+    for the corners whose covariance is finite and positive definite."""
+    a, b, d = covariances[:, 0, 0], covariances[:, 0, 1], covariances[:, 1, 1]
+    det = a * d - b * b
+    usable = np.isfinite(det) & (a > 0) & (det > 1e-18 * np.maximum(a * d, 1e-300))
+    ex, ey = errors[usable, 0], errors[usable, 1]
+    return (d[usable] * ex * ex - 2 * b[usable] * ex * ey + a[usable] * ey * ey) / det[usable]
 
 
 def _match_tags(est: Sequence[Tag], true: Sequence[Tag]) -> list[tuple[int, int]]:
@@ -405,7 +426,11 @@ def evaluate_map(
 def _slot_metrics(estimate, truth, match_radius, merge_radius, seen_mask) -> dict[str, Any]:
     est_c, true_c = _corners(estimate), _corners(truth)
     match = _match_slots(est_c, true_c, match_radius)
-    errors = np.linalg.norm(_ordered(est_c, match) - true_c[match.true], axis=2).ravel()
+    offsets = _ordered(est_c, match) - true_c[match.true]
+    errors = np.linalg.norm(offsets, axis=2).ravel()
+    covariances = np.array([np.asarray(s.corner_covariances, dtype=float)
+                            for s in estimate.slots]).reshape(len(est_c), 4, 2, 2)
+    nees = _corner_nees(offsets.reshape(-1, 2), _ordered(covariances, match).reshape(-1, 2, 2))
 
     matched_est = np.zeros(len(est_c), dtype=bool)
     matched_est[match.est] = True
@@ -450,6 +475,9 @@ def _slot_metrics(estimate, truth, match_radius, merge_radius, seen_mask) -> dic
         "corner_rmse_m": _rmse(errors),
         "corner_p95_m": _percentile(errors, 95.0),
         "corner_max_m": float(errors.max()) if errors.size else math.nan,
+        "corner_nees_mean": float(nees.mean()) if nees.size else math.nan,
+        "corner_nees_median": float(np.median(nees)) if nees.size else math.nan,
+        "corner_nees_corners": int(nees.size),
         "id_accuracy": _ratio(sum(correct), n_matched),
         "id_labelled": sum(labelled),
         "id_accuracy_labelled": _ratio(sum(correct), sum(labelled)),

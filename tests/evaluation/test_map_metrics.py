@@ -117,6 +117,42 @@ def test_moving_every_corner_by_d_gives_corner_rmse_d(truth):
     assert m.corner_p95_m == pytest.approx(d)
 
 
+def test_corner_nees_is_the_error_in_the_metric_of_the_exported_covariance(truth):
+    # each corner 0.3 m off along x; covariance sigma_x 0.1, sigma_y 1 m: NEES (0.3/0.1)^2 = 9;
+    # a second map says sigma 0.3 along x (NEES 1); the truth's zero covariances are left out
+    offset = np.array([0.3, 0.0])
+    for sigma_x, nees in ((0.1, 9.0), (0.3, 1.0)):
+        cov = np.array([[sigma_x**2, 0.0], [0.0, 1.0]])
+        moved = _with_slots(truth, [replace(s, corners=s.corners + offset,
+                                            corner_covariances=np.tile(cov, (4, 1, 1)))
+                                    for s in truth.slots])
+        m = evaluate_map(moved, truth)
+        assert m.corner_nees_corners == 4 * len(truth.slots)
+        assert m.corner_nees_mean == pytest.approx(nees) and m.corner_nees_median == pytest.approx(nees)
+    # a correlated covariance: e^T C^-1 e, not the diagonal alone
+    cov = np.array([[0.04, 0.03], [0.03, 0.04]])
+    e = np.array([0.2, -0.1])
+    moved = _with_slots(truth, [replace(s, corners=s.corners + e,
+                                        corner_covariances=np.tile(cov, (4, 1, 1)))
+                                for s in truth.slots])
+    assert evaluate_map(moved, truth).corner_nees_mean == pytest.approx(e @ np.linalg.solve(cov, e))
+    exact = evaluate_map(truth, truth)  # covariances all zero: nothing to compute it over
+    assert exact.corner_nees_corners == 0 and exact.to_dict()["corner_nees_mean"] is None
+
+
+def test_corner_nees_follows_a_slot_mapped_entrance_to_rear(truth):
+    # the estimate's corners come in the rotated order: their covariances must follow them
+    # (only the true entrance-left corner is off, by 0.1 m, and its own sigma is 0.1 m)
+    s = truth.slots[0]
+    covs = np.array([np.eye(2) * v for v in (0.01, 0.04, 0.09, 0.16)])
+    corners = s.corners.copy()
+    corners[0] += [0.1, 0.0]
+    flipped = replace(s, corners=corners[[2, 3, 0, 1]], corner_covariances=covs[[2, 3, 0, 1]])
+    m = evaluate_map(_with_slots(truth, [flipped]), _with_slots(truth, [s]))
+    assert m.slots_reversed == 1
+    assert m.corner_nees_mean == pytest.approx(1.0 / 4)
+
+
 def test_a_duplicated_slot_counts_once_as_duplicate(truth):
     copy = replace(truth.slots[5], id=999, corners=truth.slots[5].corners + [0.3, 0.0])
     m = evaluate_map(_with_slots(truth, [*truth.slots, copy]), truth)
