@@ -76,6 +76,8 @@ def print_map_summary(summary: MapSummary, console: Console | None = None) -> No
         ("driving / mapping time", f"{summary.driving_s:.1f} s / {summary.mapping_s:.1f} s"),
         ("faster than driving", f"{stats.get('speedup', '-')}x"),
     ]
+    if stats.get("marginal_fallbacks"):  # gtsam refused their covariance: a rough one instead
+        rows.append(("covariances not from the graph", str(stats["marginal_fallbacks"])))
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)

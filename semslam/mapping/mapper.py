@@ -748,8 +748,10 @@ class Mapper:
             label, confidence = landmark.best_label()
             covs = np.zeros((4, 2, 2))
             heading_variance = None
-            if marginals is not None:
+            if self.use_graph:
                 try:
+                    if marginals is None:
+                        raise RuntimeError("no marginals")
                     keys = [C(4 * landmark.index + c) for c in range(4)]
                     joint = np.asarray(
                         marginals.jointMarginalCovariance(keys).fullMatrix(), dtype=float
@@ -757,8 +759,8 @@ class Mapper:
                     for c in range(4):
                         covs[c] = joint[2 * c : 2 * c + 2, 2 * c : 2 * c + 2]
                     heading_variance = rotation_variance(landmark.corners, joint)
-                except RuntimeError:  # gtsam refused this clique (ill-conditioned): the
-                    # corner noise over the accepted observations, and counted
+                except RuntimeError:  # gtsam refused this clique or the whole graph
+                    # (ill-conditioned): the corner noise over the accepted observations, counted
                     floor = self.cfg.slot_corner_sigma_min
                     covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1)
                     self._marginal_fallbacks += 1
@@ -784,15 +786,16 @@ class Mapper:
             if self.use_graph:
                 mTt = self.graph.pose(T(tag_id))
                 cov = np.zeros((3, 3))
-                if marginals is not None:
-                    try:
-                        # gtsam's Pose2 marginal is along the tag's axes, the map's along the map's
-                        marginal = marginals.marginalCovariance(T(tag_id))
-                        cov = rotate_pose_covariance(marginal, mTt[2])
-                    except RuntimeError:  # as for slots: the spread of its sightings
-                        poses = np.array(info["poses"])
-                        cov = _pose_spread(poses, mTt) / len(poses) if len(poses) > 1 else cov
-                        self._marginal_fallbacks += 1
+                try:
+                    if marginals is None:
+                        raise RuntimeError("no marginals")
+                    # gtsam's Pose2 marginal is along the tag's axes, the map's along the map's
+                    marginal = marginals.marginalCovariance(T(tag_id))
+                    cov = rotate_pose_covariance(marginal, mTt[2])
+                except RuntimeError:  # as for slots: the spread of its sightings
+                    poses = np.array(info["poses"])
+                    cov = _pose_spread(poses, mTt) / len(poses) if len(poses) > 1 else cov
+                    self._marginal_fallbacks += 1
             else:
                 poses = np.array(info["poses"])
                 mTt = np.array(
@@ -856,11 +859,12 @@ class Mapper:
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
             sigma = None
-            if marginals is not None:
-                try:
-                    sigma = across_sigma(marginals.marginalCovariance(L(index)), s0, s1)
-                except RuntimeError:  # gtsam refused this clique, as for slots: not known
-                    self._marginal_fallbacks += 1
+            try:
+                if marginals is None:
+                    raise RuntimeError("no marginals")
+                sigma = across_sigma(marginals.marginalCovariance(L(index)), s0, s1)
+            except RuntimeError:  # gtsam refused this clique or the graph, as for slots: not
+                self._marginal_fallbacks += 1  # known
             width = float(np.median([w for _, _, w, _ in detections]))
             out.append(Marking(a, b, width, sigma))
         return tuple(out)

@@ -128,7 +128,8 @@ def test_corner_nees_is_the_error_in_the_metric_of_the_exported_covariance(truth
                                     for s in truth.slots])
         m = evaluate_map(moved, truth)
         assert m.corner_nees_corners == 4 * len(truth.slots)
-        assert m.corner_nees_mean == pytest.approx(nees) and m.corner_nees_median == pytest.approx(nees)
+        assert m.corner_nees_mean == pytest.approx(nees)
+        assert m.corner_nees_median == pytest.approx(nees)
     # a correlated covariance: e^T C^-1 e, not the diagonal alone
     cov = np.array([[0.04, 0.03], [0.03, 0.04]])
     e = np.array([0.2, -0.1])

@@ -59,6 +59,22 @@ def test_noisy_observations_robust_map_beats_odometry_only(small):
     assert robust.corner_rmse_m < dead.corner_rmse_m
 
 
+def test_a_graph_whose_marginals_gtsam_refuses_still_exports_covariances(small, monkeypatch):
+    """When gtsam's Marginals refuse the whole graph (`large` world 3 did), every slot and tag
+    takes the fallback of a refused clique, and the count says so; the map never carries
+    zero covariances as if it were exact."""
+    from semslam.mapping.graph import Graph
+
+    monkeypatch.setattr(Graph, "marginals", lambda self: None)
+    result = _map(small, small.noisy)
+    slots, tags = result.map.slots, result.map.tags
+    assert slots and tags
+    for slot in slots:
+        assert all(np.linalg.eigvalsh(c).min() > 0 for c in slot.corner_covariances)
+    assert any(np.trace(tag.covariance) > 0 for tag in tags)  # a tag seen once has no spread
+    assert result.statistics["marginal_fallbacks"] >= len(slots) + len(tags)
+
+
 def test_each_slot_carries_the_heading_variance_of_its_corners(small):
     """The joint marginal of a slot's four corners gives its orientation's variance; the
     slots' orientation errors against the truth agree with it."""
