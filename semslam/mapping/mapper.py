@@ -136,6 +136,20 @@ class MappingResult:
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
+def _marginal(marginals: gtsam.Marginals | None, keys: int | list[int]) -> FloatArray | None:
+    """The marginal covariance of one key, or the joint one of a list of keys (blocks in their
+    order); None when gtsam refused the whole graph (``marginals`` None) or this clique
+    (ill-conditioned): the caller falls back."""
+    if marginals is None:
+        return None
+    try:
+        if isinstance(keys, list):
+            return np.asarray(marginals.jointMarginalCovariance(keys).fullMatrix(), dtype=float)
+        return np.asarray(marginals.marginalCovariance(keys), dtype=float)
+    except RuntimeError:
+        return None
+
+
 def _pose_spread(poses: FloatArray, centre: FloatArray) -> FloatArray:
     """(3, 3) sample covariance of poses (N, 3) about ``centre``, yaw differences wrapped (a
     tag facing +-pi has sightings on both sides of the cut)."""
@@ -749,21 +763,16 @@ class Mapper:
             covs = np.zeros((4, 2, 2))
             heading_variance = None
             if self.use_graph:
-                try:
-                    if marginals is None:
-                        raise RuntimeError("no marginals")
-                    keys = [C(4 * landmark.index + c) for c in range(4)]
-                    joint = np.asarray(
-                        marginals.jointMarginalCovariance(keys).fullMatrix(), dtype=float
-                    )  # blocks in the order of the keys
-                    for c in range(4):
-                        covs[c] = joint[2 * c : 2 * c + 2, 2 * c : 2 * c + 2]
-                    heading_variance = rotation_variance(landmark.corners, joint)
-                except RuntimeError:  # gtsam refused this clique or the whole graph
-                    # (ill-conditioned): the corner noise over the accepted observations, counted
+                keys = [C(4 * landmark.index + c) for c in range(4)]
+                joint = _marginal(marginals, keys)
+                if joint is None:  # the corner noise over the accepted observations, counted
                     floor = self.cfg.slot_corner_sigma_min
                     covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1)
                     self._marginal_fallbacks += 1
+                else:  # blocks in the order of the keys
+                    for c in range(4):
+                        covs[c] = joint[2 * c : 2 * c + 2, 2 * c : 2 * c + 2]
+                    heading_variance = rotation_variance(landmark.corners, joint)
             slot_of_landmark[landmark.index] = len(slots)
             slots.append(
                 Slot(
@@ -786,16 +795,13 @@ class Mapper:
             if self.use_graph:
                 mTt = self.graph.pose(T(tag_id))
                 cov = np.zeros((3, 3))
-                try:
-                    if marginals is None:
-                        raise RuntimeError("no marginals")
-                    # gtsam's Pose2 marginal is along the tag's axes, the map's along the map's
-                    marginal = marginals.marginalCovariance(T(tag_id))
-                    cov = rotate_pose_covariance(marginal, mTt[2])
-                except RuntimeError:  # as for slots: the spread of its sightings
+                marginal = _marginal(marginals, T(tag_id))
+                if marginal is None:  # as for slots: the spread of its sightings
                     poses = np.array(info["poses"])
                     cov = _pose_spread(poses, mTt) / len(poses) if len(poses) > 1 else cov
                     self._marginal_fallbacks += 1
+                else:  # gtsam's Pose2 marginal is along the tag's axes, the map's along the map's
+                    cov = rotate_pose_covariance(marginal, mTt[2])
             else:
                 poses = np.array(info["poses"])
                 mTt = np.array(
@@ -859,12 +865,11 @@ class Mapper:
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
             sigma = None
-            try:
-                if marginals is None:
-                    raise RuntimeError("no marginals")
-                sigma = across_sigma(marginals.marginalCovariance(L(index)), s0, s1)
-            except RuntimeError:  # gtsam refused this clique or the graph, as for slots: not
-                self._marginal_fallbacks += 1  # known
+            marginal = _marginal(marginals, L(index))
+            if marginal is None:  # as for slots, but a line's sigma is then not known
+                self._marginal_fallbacks += 1
+            else:
+                sigma = across_sigma(marginal, s0, s1)
             width = float(np.median([w for _, _, w, _ in detections]))
             out.append(Marking(a, b, width, sigma))
         return tuple(out)
