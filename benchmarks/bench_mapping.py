@@ -18,7 +18,8 @@ from pathlib import Path
 from _common import run_semslam
 
 KEYS = ["corner_rmse_m", "corner_p95_m", "slots_true", "slots_mapped", "slots_matched",
-        "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy", "tags_rmse_m"]
+        "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy", "tags_rmse_m",
+        "corner_nees_mean", "corner_nees_median"]
 
 VARIANTS = {
     "maxmix (default)": ([], {}),
@@ -64,11 +65,12 @@ def main() -> None:
                     print(json.dumps(results[-1]), file=sys.stderr, flush=True)
     cols = ["preset", "seed", "variant", "corner_rmse_m", "corner_p95_m", "slots_true",
             "slots_matched", "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy",
-            "driving_s", "mapping_s", "speedup"]
+            "corner_nees_mean", "corner_nees_median", "driving_s", "mapping_s", "speedup"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in results:
         cells = [f"{r[c]:.3f}" if isinstance(r[c], float) and c.endswith(("_m", "accuracy"))
+                 else f"{r[c]:.2f}" if isinstance(r[c], float) and "nees" in c
                  else str(r[c]) for c in cols]
         print("| " + " | ".join(cells) + " |")
     print(json.dumps(results))
