@@ -86,3 +86,27 @@ def test_the_last_isam2_result_is_kept_for_profiling():
     assert graph.last_result.getVariablesReeliminated() == 2
     graph.update()  # nothing new: nothing re-eliminated
     assert graph.last_result.getVariablesReeliminated() == 0
+
+
+def test_a_graph_cholesky_refuses_gets_the_same_marginals_from_qr(monkeypatch):
+    """When gtsam's Marginals (Cholesky) refuse the graph, QR elimination answers the same
+    covariances (`large` world 3's map was exported with none)."""
+    graph = Graph()
+    _circle(graph, steps=12)
+    graph.optimize_batch()
+    cholesky = graph.marginals()
+    assert isinstance(cholesky, gtsam.Marginals)
+
+    def refuse(*args):
+        raise RuntimeError("Indeterminate linear system detected")
+
+    monkeypatch.setattr(gtsam, "Marginals", refuse)
+    qr = graph.marginals()
+    assert qr is not None
+    for key in (X(0), X(6), P(2)):
+        np.testing.assert_allclose(qr.marginalCovariance(key), cholesky.marginalCovariance(key),
+                                   rtol=1e-8, atol=1e-14)
+    keys = [P(j) for j in range(4)]
+    np.testing.assert_allclose(qr.jointMarginalCovariance(keys).fullMatrix(),
+                               cholesky.jointMarginalCovariance(keys).fullMatrix(),
+                               rtol=1e-8, atol=1e-14)
