@@ -136,10 +136,11 @@ class MappingResult:
     slot_of_landmark: dict[int, int]  # landmark index (after merges) -> Slot.id in the map
 
 
-def _marginal(marginals: gtsam.Marginals | None, keys: int | list[int]) -> FloatArray | None:
+def _marginal(marginals, keys: int | list[int]) -> FloatArray | None:
     """The marginal covariance of one key, or the joint one of a list of keys (blocks in their
-    order); None when gtsam refused the whole graph (``marginals`` None) or this clique
-    (ill-conditioned): the caller falls back."""
+    order), from :meth:`Graph.marginals`' answer (gtsam's Marginals or a QR Bayes tree); None
+    when the whole graph was refused (``marginals`` None) or this clique (ill-conditioned):
+    the caller falls back."""
     if marginals is None:
         return None
     try:
