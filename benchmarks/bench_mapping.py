@@ -19,7 +19,7 @@ from _common import run_semslam
 
 KEYS = ["corner_rmse_m", "corner_p95_m", "slots_true", "slots_mapped", "slots_matched",
         "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy", "tags_rmse_m",
-        "corner_nees_mean", "corner_nees_median"]
+        "corner_nees_mean", "corner_nees_median", "id_brier", "id_confident_accuracy"]
 
 VARIANTS = {
     "maxmix (default)": ([], {}),

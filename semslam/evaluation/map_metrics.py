@@ -29,6 +29,7 @@ IntArray = NDArray[np.intp]
 REVERSED_ORDER = (2, 3, 0, 1)  # the same slot seen from its rear: entrance and rear swapped
 REVERSED_FACTOR = 0.5  # the reversed order counts when its mean corner distance is below half
 ICP_ITERATIONS = 20
+CONFIDENT_LABEL = 0.9  # label_confidence from which a mapped ID counts as confident
 _CHUNK = 1 << 20  # point-segment pairs per block in the marking distances
 
 
@@ -82,6 +83,13 @@ class MapMetrics:
             label; an estimated label None counts as wrong.
         id_labelled: matched slots whose estimated label is not None.
         id_accuracy_labelled: fraction of ``id_labelled`` slots read right.
+        id_brier: mean over the ``id_labelled`` slots of (label_confidence -
+            right)^2, right 1 or 0: 0 for labels that are right and sure, 0.25
+            for confidences of 0.5 throughout; how well the exported label
+            confidences tell right labels from wrong ones.
+        id_confident: ``id_labelled`` slots with label_confidence >= 0.9
+            (``CONFIDENT_LABEL``).
+        id_confident_accuracy: fraction of ``id_confident`` slots read right.
         tags_true, tags_mapped: tags in each map.
         tags_matched: one-to-one pairs with the same family and ID (among
             several with one key, the nearest pairs).
@@ -116,6 +124,9 @@ class MapMetrics:
     id_accuracy: float
     id_labelled: int
     id_accuracy_labelled: float
+    id_brier: float
+    id_confident: int
+    id_confident_accuracy: float
     tags_true: int
     tags_mapped: int
     tags_matched: int
@@ -460,6 +471,10 @@ def _slot_metrics(estimate, truth, match_radius, merge_radius, seen_mask) -> dic
         for i, j in zip(match.est, match.true, strict=True)
     ]
     labelled = [estimate.slots[i].label is not None for i in match.est]
+    confidence = np.array([estimate.slots[i].label_confidence for i in match.est], dtype=float)
+    mask = np.array(labelled, dtype=bool)
+    right, confidence = np.array(correct, dtype=float)[mask], confidence[mask]
+    confident = confidence >= CONFIDENT_LABEL
     n_matched = len(match.est)
     return {
         "slots_true": len(true_c),
@@ -481,6 +496,9 @@ def _slot_metrics(estimate, truth, match_radius, merge_radius, seen_mask) -> dic
         "id_accuracy": _ratio(sum(correct), n_matched),
         "id_labelled": sum(labelled),
         "id_accuracy_labelled": _ratio(sum(correct), sum(labelled)),
+        "id_brier": float(np.mean((confidence - right) ** 2)) if right.size else math.nan,
+        "id_confident": int(confident.sum()),
+        "id_confident_accuracy": _ratio(int(right[confident].sum()), int(confident.sum())),
     }
 
 

@@ -7,7 +7,9 @@ and the pool of slots seen too few times to become landmarks yet.
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -41,6 +43,37 @@ def best_label(votes: dict[str, float]) -> tuple[str | None, float]:
     label = max(votes, key=lambda k: votes[k])
     total = sum(votes.values())
     return label, votes[label] / total if total > 0 else 0.0
+
+
+LABEL_ALPHABET = 100
+"""Labels a misread is spread over in :func:`label_probability`. One reading gives its own
+confidence whatever this is; it only weighs readings that disagree."""
+
+
+def label_probability(
+    readings: Iterable[tuple[str, float]], label: str, alphabet: int = LABEL_ALPHABET
+) -> float:
+    """Probability that a slot's painted ID is ``label``, from its readings.
+
+    Each reading ``(label, confidence)`` is taken as independent, right with its confidence
+    and, when wrong, any of the ``alphabet - 1`` other labels alike, over a uniform prior.
+    So one reading gives its own confidence, readings that agree add their log-odds, and
+    readings of other labels take it away. Confidences are clipped to [0.001, 0.999].
+
+    Returns 0 when ``label`` was never read.
+    """
+    k = int(alphabet)
+    score: dict[str, float] = defaultdict(float)  # log(likelihood / that of an unread label)
+    for read, confidence in readings:
+        c = min(max(float(confidence), 1e-3), 0.999)
+        score[read] += math.log(c / (1.0 - c)) + math.log(k - 1)
+    if label not in score:
+        return 0.0
+    if len(score) >= k:
+        raise ValueError(f"label_probability: {len(score)} labels read, alphabet of {k}")
+    top = max(max(score.values()), 0.0)
+    total = sum(math.exp(v - top) for v in score.values()) + (k - len(score)) * math.exp(-top)
+    return math.exp(score[label] - top) / total
 
 
 def mean_corner_distance(a: FloatArray, b: FloatArray) -> FloatArray:

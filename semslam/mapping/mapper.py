@@ -20,7 +20,8 @@ Follows TiEV (DESIGN.md) with the association made exact:
 - iSAM2 every ``update_every`` keyframes (the map is usable at any time), a final
   batch Levenberg-Marquardt, marginal covariances for every landmark;
 - labels: each slot keeps the label its *accepted* observations voted for most
-  (summed confidence), and the share of the votes as its confidence.
+  (summed confidence), with the probability that it is right given every reading
+  (:func:`.landmarks.label_probability`) as its confidence.
 
 Everything is in the map frame anchored at the drive's start pose.
 """
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -57,7 +59,13 @@ from semslam.mapping.factors import (
 )
 from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
-from semslam.mapping.landmarks import SlotLandmark, SlotLandmarks, SlotPool, mean_corner_distance
+from semslam.mapping.landmarks import (
+    SlotLandmark,
+    SlotLandmarks,
+    SlotPool,
+    label_probability,
+    mean_corner_distance,
+)
 from semslam.mapping.lines import LineLandmarks, across_sigma
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations, robust_extent
@@ -742,10 +750,9 @@ class Mapper:
                 self._label_votes.append((near[0][0], obs.label, obs.label_confidence))
 
     def _export(self, marginals) -> tuple[SemanticMap, dict[int, int]]:
-        for landmark in self.slots.items:
-            landmark.votes.clear()
+        readings: dict[int, list[tuple[str, float]]] = defaultdict(list)
         for index, label, confidence in self._label_votes:
-            self.slots.items[self.slots.resolve(index)].votes[label] += confidence
+            readings[self.slots.resolve(index)].append((label, confidence))
         accepted: dict[int, int] = {}
         for s in self.sightings:
             if s.landmark is None or s.status in (SightingStatus.NULL, SightingStatus.POOLED):
@@ -753,14 +760,19 @@ class Mapper:
             index = self.slots.resolve(s.landmark)
             accepted[index] = accepted.get(index, 0) + 1
             if s.observation.label is not None:
-                self.slots.items[index].votes[s.observation.label] += s.observation.label_confidence
+                readings[index].append((s.observation.label, s.observation.label_confidence))
+        for landmark in self.slots.items:
+            landmark.votes.clear()
+            for label, confidence in readings.get(landmark.index, []):
+                landmark.votes[label] += confidence
         slots = []
         slot_of_landmark: dict[int, int] = {}
         for landmark in self.slots.active():
             n = accepted.get(landmark.index, 0)
             if n < self.cfg.min_accepted_observations:
                 continue
-            label, confidence = landmark.best_label()
+            label, _ = landmark.best_label()  # the most votes; its probability from all reads
+            confidence = label_probability(readings[landmark.index], label) if label else 0.0
             covs = np.zeros((4, 2, 2))
             heading_variance = None
             if self.use_graph:

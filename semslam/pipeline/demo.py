@@ -151,6 +151,8 @@ def run_demo(
                 "id_accuracy",
                 "id_labelled",
                 "id_accuracy_labelled",
+                "id_confident",
+                "id_confident_accuracy",
                 "tags_rmse_m",
             )
         },
@@ -208,7 +210,8 @@ def _report(results: dict[str, Any], pictures: list[str]) -> str:
         "`id_accuracy` counts every matched slot, and a slot without a label as wrong: an ID "
         "under a parked car, or only ever seen from across the aisle (outside the 10 m top "
         "view), is never read. `id_accuracy_labelled` is over the `id_labelled` slots that "
-        "got a label.",
+        "got a label, `id_confident_accuracy` over the `id_confident` ones whose label "
+        "confidence is 0.9 or more.",
         "",
         "| localization | value |",
         "| --- | --- |",

@@ -308,3 +308,18 @@ def test_point_segment_distance_cases():
     b = np.array([[2.0, 0.0], [5.0, 5.0]])  # second is a point
     pts = np.array([[1.0, 1.0], [3.0, 0.0], [-1.0, 0.0], [5.0, 6.0], [1.0, 0.0]])
     np.testing.assert_allclose(point_segment_distances(pts, a, b), [1.0, 1.0, 1.0, 1.0, 0.0])
+
+
+def test_label_confidences_are_scored_against_the_labels_being_right(truth):
+    """id_brier and id_confident_accuracy, counted by hand on a map with one sure wrong
+    label, one unsure right label and one unread slot."""
+    n = len(truth.slots)
+    slots = [replace(s, label_confidence=1.0) for s in truth.slots]
+    slots[0] = replace(slots[0], label=None, label_confidence=0.0)
+    slots[1] = replace(slots[1], label="ZZ99", label_confidence=0.95)
+    slots[2] = replace(slots[2], label_confidence=0.6)
+    m = evaluate_map(_with_slots(truth, slots), truth)
+    assert m.id_labelled == n - 1
+    assert m.id_brier == pytest.approx((0.95**2 + 0.4**2) / (n - 1))
+    assert m.id_confident == n - 2
+    assert m.id_confident_accuracy == pytest.approx((n - 3) / (n - 2))

@@ -1,8 +1,13 @@
-"""Slot landmarks: the duplicate merge after a loop closure (semslam.mapping.landmarks)."""
+"""Slot landmarks: the duplicate merge after a loop closure, and the probability of a
+slot's label from its readings (semslam.mapping.landmarks)."""
+
+import itertools
+import math
 
 import numpy as np
+import pytest
 
-from semslam.mapping.landmarks import SlotLandmarks
+from semslam.mapping.landmarks import SlotLandmarks, label_probability
 from semslam.types import SlotKind
 
 SLOT = np.array([[0.0, 0.0], [2.5, 0.0], [2.5, 5.0], [0.0, 5.0]])
@@ -27,3 +32,48 @@ def test_slots_with_the_same_id_all_merge():
     for dx in (0.3, -0.3):
         slots.add(SLOT + [dx, 0.0], SlotKind.PERPENDICULAR).votes["B17"] += 0.95
     assert [k for k, _ in slots.duplicates(0.6, np.array([1.25, 2.5]), 25.0)] == [keep.index] * 2
+
+
+def _posterior_by_enumeration(readings, label, alphabet):
+    """P(label | readings) over an explicit alphabet: a reading is right with its
+    confidence, else any of the other labels alike; uniform prior."""
+    read = sorted({r for r, _ in readings})
+    labels = read + [f"unread{i}" for i in range(alphabet - len(read))]
+
+    def likelihood(truth):
+        return math.prod(c if r == truth else (1 - c) / (alphabet - 1) for r, c in readings)
+
+    return likelihood(label) / sum(likelihood(t) for t in labels)
+
+
+@pytest.mark.parametrize(
+    "readings",
+    [
+        [("B17", 0.9)],
+        [("B17", 0.9), ("B17", 0.7)],
+        [("B17", 0.9), ("B18", 0.9)],
+        [("B17", 0.6), ("B17", 0.55), ("B18", 0.95), ("17", 0.5)],
+        [("B17", 0.02)],
+        [("B17", 0.02), ("B17", 0.02), ("B17", 0.02)],
+    ],
+)
+def test_label_probability_is_the_posterior_of_independent_readings(readings):
+    for label in {r for r, _ in readings}:
+        for alphabet in (5, 100):
+            expected = _posterior_by_enumeration(readings, label, alphabet)
+            assert label_probability(readings, label, alphabet) == pytest.approx(expected, rel=1e-9)
+
+
+def test_one_reading_gives_its_own_confidence_and_agreement_adds_up():
+    """A slot read once at 0.02 is not sure of its label (the share of the votes said 1.0)."""
+    assert label_probability([("B17", 0.02)], "B17") == pytest.approx(0.02)
+    assert label_probability([("B17", 0.9)], "B17") == pytest.approx(0.9)
+    assert label_probability([("B17", 0.9)] * 2, "B17") > 0.999
+    split = label_probability([("B17", 0.9), ("B18", 0.9)], "B17")
+    assert split == pytest.approx(label_probability([("B17", 0.9), ("B18", 0.9)], "B18"))
+    assert split < 0.5
+    assert label_probability([("B17", 0.9)], "B18") == 0.0
+    for confidence in (0.0, 1.0):  # clipped, never 0 or 1 from one reading
+        assert 0.0 < label_probability([("B17", confidence)], "B17") < 1.0
+    readings = list(itertools.repeat(("B17", 1.0), 500))  # no overflow
+    assert label_probability(readings, "B17") == pytest.approx(1.0)

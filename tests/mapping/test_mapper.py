@@ -330,3 +330,25 @@ def test_a_line_detection_with_a_nan_end_is_left_out(small):
     result = _map(small, frames)
     assert all(np.isfinite([m.a, m.b]).all() for m in result.map.markings)
 
+
+
+def test_a_slot_read_once_unsurely_exports_that_doubt(small):
+    """A slot whose ID is read in one frame, at 0.02, exports its label at about 0.02 (the
+    share of the votes gave 1.0); a slot read in many frames is sure of its label."""
+    label = next(o.label for f in small.exact for o in f.slots if o.label)
+    reads = [(i, j) for i, f in enumerate(small.exact) for j, o in enumerate(f.slots)
+             if o.label == label]
+    once = reads[len(reads) // 2]
+    frames = []
+    for i, frame in enumerate(small.exact):
+        slots = tuple(
+            o if o.label != label
+            else dataclasses.replace(o, label_confidence=0.02) if (i, j) == once
+            else dataclasses.replace(o, label=None, label_confidence=0.0)
+            for j, o in enumerate(frame.slots)
+        )
+        frames.append(FrameObservations(frame.t, slots, frame.tags, frame.markings))
+    slots = {s.label: s for s in _map(small, frames).map.slots}
+    assert slots[label].label_confidence == pytest.approx(0.02)
+    others = [s for s in slots.values() if s.label not in (None, label)]
+    assert others and all(s.label_confidence > 0.99 for s in others)
