@@ -311,6 +311,10 @@ class LocalizationConfig(_Section):
     id_confidence_high: float = Field(
         0.8, ge=0, le=1, description="label confidence from which a slot is looked up by ID"
     )
+    map_label_confidence_min: float = Field(
+        0.5, ge=0, le=1, description="map slot labels less likely than this to be right are "
+        "not used: the slot counts as unlabelled"
+    )
     search_radius: float = Field(4.0, gt=0, description="local map: candidates this near, m")
     tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
     slot_gate: float = Field(0.999, gt=0, lt=1, description="per-slot chi-square gate probability")

@@ -58,6 +58,19 @@ INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
 )
 
 
+def unsure_labels_dropped(semantic_map: SemanticMap, minimum: float) -> SemanticMap:
+    """The map with every slot label less likely than ``minimum`` to be right removed (the
+    slot stays, unlabelled): an ID the mapper read once, unsurely, must not pull a
+    confidently read ID onto the wrong slot, nor place the car by it."""
+    slots = tuple(
+        replace(s, label=None, label_confidence=0.0)
+        if s.label is not None and s.label_confidence < minimum
+        else s
+        for s in semantic_map.slots
+    )
+    return replace(semantic_map, slots=slots)
+
+
 @dataclass(frozen=True)
 class FrameEstimate:
     """The localizer's answer for one frame."""
@@ -92,6 +105,7 @@ class Localizer:
         initial_pose: FloatArray | None = None,
     ) -> None:
         self.cfg = cfg
+        semantic_map = unsure_labels_dropped(semantic_map, cfg.map_label_confidence_min)
         self.local_map = LocalMap(semantic_map, cfg)
         self.relocalizer = Relocalizer(
             semantic_map,

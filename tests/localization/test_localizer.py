@@ -10,7 +10,7 @@ import pytest
 
 from semslam.config import LocalizationConfig, SimulationConfig
 from semslam.errors import DriveError
-from semslam.localization.localizer import Localizer, positive_part_2x2
+from semslam.localization.localizer import Localizer, positive_part_2x2, unsure_labels_dropped
 from semslam.simulation.scenario import simulate_drive
 from semslam.types import FrameObservations, TagObservation
 
@@ -187,3 +187,24 @@ def test_positive_part_2x2_matches_the_eigendecomposition():
         expected = (V * np.maximum(w, 0.0)) @ V.T
         np.testing.assert_allclose(positive_part_2x2(A), expected, atol=1e-12)
     np.testing.assert_array_equal(positive_part_2x2(-np.eye(2)), np.zeros((2, 2)))
+
+
+def test_map_labels_the_mapper_was_unsure_of_are_not_used(sim):
+    """A map slot whose label is less likely than map_label_confidence_min to be right
+    counts as unlabelled, for association and relocalization alike; the slot stays."""
+    world = sim.world.to_map()
+    slots = list(world.slots)
+    slots[0] = dataclasses.replace(slots[0], label_confidence=0.3)
+    slots[1] = dataclasses.replace(slots[1], label_confidence=0.7)
+    unsure = dataclasses.replace(world, slots=tuple(slots))
+    kept = unsure_labels_dropped(unsure, 0.5)
+    assert len(kept.slots) == len(world.slots)
+    assert kept.slots[0].label is None and kept.slots[0].label_confidence == 0.0
+    assert kept.slots[1].label == world.slots[1].label
+    rec = sim.record
+    loc = Localizer(unsure, LocalizationConfig(), rec.t, rec.odo_speed, rec.odo_yaw_rate)
+    assert loc.local_map.slots[0].label is None
+    assert loc.local_map.slots[1].label == world.slots[1].label
+    everything = Localizer(unsure, LocalizationConfig(map_label_confidence_min=0.0), rec.t,
+                           rec.odo_speed, rec.odo_yaw_rate)
+    assert everything.local_map.slots[0].label == world.slots[0].label
