@@ -65,12 +65,14 @@ def main() -> None:
                     print(json.dumps(results[-1]), file=sys.stderr, flush=True)
     cols = ["preset", "seed", "variant", "corner_rmse_m", "corner_p95_m", "slots_true",
             "slots_matched", "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy",
-            "corner_nees_mean", "corner_nees_median", "driving_s", "mapping_s", "speedup"]
+            "id_brier", "id_confident_accuracy", "corner_nees_mean", "corner_nees_median",
+            "driving_s", "mapping_s", "speedup"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in results:
         cells = [f"{r[c]:.3f}" if isinstance(r[c], float) and c.endswith(("_m", "accuracy"))
                  else f"{r[c]:.2f}" if isinstance(r[c], float) and "nees" in c
+                 else f"{r[c]:.1e}" if isinstance(r[c], float) and "brier" in c
                  else str(r[c]) for c in cols]
         print("| " + " | ".join(cells) + " |")
     print(json.dumps(results))
