@@ -6,7 +6,11 @@ markings only, scores each with `semslam evaluate trajectory`, and runs the relo
 trials through the library (100 random starts with `--init auto`; kidnaps of 10 m).
 
     python benchmarks/bench_localization.py [--seeds 1 2 3] [--starts 100] [--kidnaps 20]
-        [--observability-only]
+        [--observability-only] [--plan-tags K] [--trials-only]
+
+``--plan-tags K``: first plan up to K tags for relocalization on drive 0's route through the
+bare world (`semslam plan-tags --objective relocalization`), then simulate both drives with
+them (`semslam simulate --tags`): what the garage would give with the tags semslam proposes.
 """
 
 from __future__ import annotations
@@ -163,13 +167,27 @@ def start_observability(drive_dir: Path, starts: int, seed: int) -> dict:
             "only_lines_within_2s": anything - landmarks, "nothing_within_2s": starts - anything}
 
 
-def simulate_and_map(root: Path, seed: int) -> tuple[Path, Path]:
-    """Drives 0 and 1 of the `garage` world ``seed`` simulated under ``root`` (no images),
-    drive 0 mapped with noisy observations: drive 1's folder and the map's path."""
+def plan_relocalization_tags(root: Path, seed: int, count: int) -> dict:
+    """Up to ``count`` tags planned for relocalization (within 2 s) on drive 0's route
+    through the bare `garage` world ``seed``: the plan's JSON (its file under ``root``)."""
+    bare = root / f"s{seed}bare"
+    run(["simulate", str(bare), "--preset", "garage", "--seed", str(seed), "--no-images"])
+    out = root / f"s{seed}plan"
+    run(["plan-tags", str(bare / "world.json"), "--route", str(bare / "groundtruth.tum"),
+         "-o", str(out), "--count", str(count), "--objective", "relocalization",
+         "--random-trials", "1"])
+    return json.loads((out / "tag_plan.json").read_text()) | {"file": str(out / "tag_plan.json")}
+
+
+def simulate_and_map(root: Path, seed: int, tags: str | None = None) -> tuple[Path, Path]:
+    """Drives 0 and 1 of the `garage` world ``seed`` simulated under ``root`` (no images;
+    with the tags of the plan file ``tags`` added), drive 0 mapped with noisy observations:
+    drive 1's folder and the map's path."""
     d0, d1 = root / f"s{seed}d0", root / f"s{seed}d1"
-    run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images"])
+    extra = [] if tags is None else ["--tags", tags]
+    run(["simulate", str(d0), "--preset", "garage", "--seed", str(seed), "--no-images", *extra])
     run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive", "1",
-         "--no-images"])
+         "--no-images", *extra])
     map_path = root / f"s{seed}.map.json"
     run(["map", str(d0), "-o", str(map_path), "--observations", "noisy", "--no-progress"])
     return d1, map_path
@@ -182,26 +200,37 @@ def main() -> None:
     parser.add_argument("--kidnaps", type=int, default=20)
     parser.add_argument("--observability-only", action="store_true",
                         help="only count what the random starts can see (no map, no filter)")
+    parser.add_argument("--plan-tags", type=int, default=0, metavar="K",
+                        help="add up to K tags planned for relocalization to the world")
+    parser.add_argument("--trials-only", action="store_true",
+                        help="skip the localization runs; only the relocalization trials")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for seed in args.seeds:
+            tags = None
+            if args.plan_tags:
+                plan = plan_relocalization_tags(root, seed, args.plan_tags)
+                tags = plan["file"]
+                print(json.dumps({"seed": seed, "planned_tags": len(plan["proposed_tags"]),
+                                  "coverage": [s["relocalization_coverage"]
+                                               for s in plan["greedy"]]}), flush=True)
             if args.observability_only:
                 d1 = root / f"s{seed}d1"
                 run(["simulate", str(d1), "--preset", "garage", "--seed", str(seed), "--drive",
-                     "1", "--no-images"])
+                     "1", "--no-images", *([] if tags is None else ["--tags", tags])])
                 rows.append({"seed": seed, **start_observability(d1, args.starts, seed)})
                 print(json.dumps(rows[-1]), flush=True)
                 continue
-            d1, map_path = simulate_and_map(root, seed)
+            d1, map_path = simulate_and_map(root, seed, tags)
             variants = {
                 "ekf (default)": {},
                 "sigma points (Houben)": {"SEMSLAM_LOCALIZATION__UPDATE": "sigma"},
                 "markings only": {"SEMSLAM_LOCALIZATION__USE_SLOTS": "false",
                                   "SEMSLAM_LOCALIZATION__USE_TAGS": "false"},
             }
-            for name, env in variants.items():
+            for name, env in ({} if args.trials_only else variants).items():
                 out = root / f"s{seed}-{len(rows)}.tum"
                 row = {"seed": seed, "variant": name,
                        **localize_and_score(d1, map_path, out, env)}

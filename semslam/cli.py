@@ -120,11 +120,17 @@ def simulate(
     seed: Annotated[int, typer.Option(help="Fixes the world.")] = 0,
     drive: Annotated[int, typer.Option(help="Another route and noise through the same world.")] = 0,
     images: Annotated[bool, typer.Option("--images/--no-images", help="Render images.")] = True,
+    tags: Annotated[
+        Path | None,
+        typer.Option(metavar="TAG_PLAN.json",
+                     help="Add the tags a `semslam plan-tags` plan proposes to the world."),
+    ] = None,
     config: ConfigOption = None,
     progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
 ) -> None:
     """Simulate a drive through a seeded garage and write it as a drive folder."""
     from semslam.config import load_config
+    from semslam.io.tag_plan import read_proposed_tags
     from semslam.pipeline.simulate import simulate as run
     from semslam.reporting import print_simulation_summary
 
@@ -132,7 +138,9 @@ def simulate(
         _at_least(seed, 0, "--seed")
         _at_least(drive, 0, "--drive")
         _output_folder(str(out_dir), "OUT_DIR")
-        summary = run(out_dir, preset.value, seed, drive, images, load_config(config), progress)
+        placed = None if tags is None else read_proposed_tags(tags)
+        summary = run(out_dir, preset.value, seed, drive, images, load_config(config), progress,
+                      placed)
     except (SemslamError, OSError) as e:
         _fail(e)
     print_simulation_summary(summary)
@@ -530,6 +538,11 @@ class HofmannGrade(StrEnum):
     precise = "precise"
 
 
+class PlanObjective(StrEnum):
+    accuracy = "accuracy"
+    relocalization = "relocalization"
+
+
 @app.command()
 def accuracy(
     map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
@@ -593,19 +606,27 @@ def plan_tags_command(
     random_trials: Annotated[
         int, typer.Option(help="Random placements drawn per number of tags (seed 0).")
     ] = 20,
+    objective: Annotated[
+        PlanObjective,
+        typer.Option(help="accuracy: lower the worst predicted sigma; relocalization: a slot "
+                     "or tag in view within --within seconds from anywhere on the route."),
+    ] = PlanObjective.accuracy,
+    within: Annotated[
+        float, typer.Option(metavar="SECONDS", help="Relocalization: time allowed to see one.")
+    ] = 2.0,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Where to put COUNT tags, and how accuracy changes with their number.
 
-    Greedy on the predicted worst sigma along the route, against evenly spread and
-    randomly placed tags."""
+    Greedy on the predicted worst sigma along the route (or on relocalization coverage),
+    against evenly spread and randomly placed tags."""
     from semslam.pipeline.plan_tags import plan_tags
     from semslam.reporting import print_metrics
 
     try:
         out = _output_folder(output)
         result = plan_tags(map_path, route, out, count, grade.value, keep_existing,
-                           random_trials=random_trials)
+                           random_trials=random_trials, objective=objective.value, within=within)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:
@@ -621,7 +642,10 @@ def plan_tags_command(
         spread = "" if even is None else f"; evenly spread {_m(even['worst_m'])}"
         if rand is not None:
             spread += f"; random median {_m(rand['worst_m']['median'])}"
-        rows[f"{step['count']} tags{where}"] = f"worst {_m(step['worst_m'])}{spread}"
+        rows[f"{step['count']} tags{where}"] = (
+            f"worst {_m(step['worst_m'])}{spread}; a slot or tag within {within:g} s from "
+            f"{step['relocalization_coverage']:.1%} of the route"
+        )
     rows["written"] = ", ".join(result["files"])
     print_metrics("semslam plan-tags", rows, False)
 

@@ -151,6 +151,35 @@ def test_plan_tags_refuses_a_route_without_length_and_writes_nothing(small_drive
     assert not (out / "tag_plan.json").exists()
 
 
+@pytest.mark.parametrize(
+    ("plan", "words"),
+    [
+        (None, ["file not found"]),
+        ("{}", ["missing field 'proposed_tags'"]),
+        ('{"proposed_tags": [{"x": 1, "y": NaN, "yaw": 0}]}', ["proposed_tags/0/y", "NaN"]),
+        ('{"proposed_tags": [{"x": 1, "y": 2}]}', ["proposed_tags/0", "'yaw'"]),
+    ],
+)
+def test_simulate_refuses_a_broken_tag_plan_and_writes_nothing(tmp_path, plan, words):
+    path = tmp_path / "tag_plan.json"
+    if plan is not None:
+        path.write_text(plan)
+    out = tmp_path / "drive"
+    result = _run("simulate", out, "--preset", "small", "--no-images", "--tags", path)
+    _fails(result, str(path), *words)
+    assert not out.exists()
+
+
+def test_plan_tags_refuses_an_unknown_objective_and_a_bad_time(small_drive, tmp_path):
+    route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
+    result = _run("plan-tags", small_drive / "world.json", "--route", route,
+                  "-o", tmp_path / "p", "--within", "0")
+    _fails(result, "--within")
+    result = _run("plan-tags", small_drive / "world.json", "--route", route,
+                  "-o", tmp_path / "p", "--objective", "beauty")
+    assert result.exit_code == 2 and "Traceback" not in result.output
+
+
 def test_plan_tags_caps_count(small_drive, tmp_path):
     route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
     result = _run("plan-tags", small_drive / "world.json", "--route", route,

@@ -123,3 +123,31 @@ def test_accuracy_and_plan_tags_on_a_small_world(tmp_path):
     assert len(plan["greedy"]) == 3 and plan["greedy"][0]["count"] == 0
     result = _run("accuracy", tmp_path / "world.json", "-o", tmp_path / "a2", "--grade", "bad")
     assert result.exit_code == 2
+
+
+def test_tags_planned_for_relocalization_are_seen_by_the_simulated_drive(tmp_path):
+    """plan-tags --objective relocalization on a drive's route, then the same drive
+    simulated with the plan: coverage rises with every tag, and the drive sees them."""
+    bare = tmp_path / "bare"
+    assert _run("simulate", bare, "--preset", "small", "--seed", "2", "--no-images",
+                "--no-progress").exit_code == 0
+    result = _run("plan-tags", bare / "world.json", "--route", bare / "groundtruth.tum",
+                  "-o", tmp_path / "plan", "--count", "3", "--objective", "relocalization",
+                  "--random-trials", "1", "--json")
+    assert result.exit_code == 0, result.output
+    plan = json.loads(result.stdout)
+    coverage = [s["relocalization_coverage"] for s in plan["greedy"]]
+    assert plan["objective"] == "relocalization" and len(plan["proposed_tags"]) >= 1
+    assert all(b > a for a, b in zip(coverage, coverage[1:], strict=False))
+    placed = tmp_path / "placed"
+    result = _run("simulate", placed, "--preset", "small", "--seed", "2", "--no-images",
+                  "--tags", tmp_path / "plan" / "tag_plan.json", "--no-progress")
+    assert result.exit_code == 0, result.output
+    world = json.loads((placed / "world.json").read_text())
+    bare_ids = {t["id"] for t in json.loads((bare / "world.json").read_text())["tags"]}
+    new_ids = {t["id"] for t in world["tags"]} - bare_ids
+    assert len(new_ids) == len(plan["proposed_tags"])
+    seen = set()
+    for line in (placed / "observations" / "exact.jsonl").read_text().splitlines():
+        seen |= {t["id"] for t in json.loads(line).get("tags", [])}
+    assert new_ids & seen

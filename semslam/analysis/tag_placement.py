@@ -6,13 +6,18 @@ Each round adds the candidate that most lowers the worst filtered position sigma
 the route (ties broken by the mean), with the route's landmark information computed once
 and each candidate's tag information once (:mod:`semslam.analysis.accuracy`). For
 comparison, the same number of tags spread evenly along the route (TiEV found 10
-evenly spread tags best, by trial) or drawn at random from the candidates. Pure numpy.
+evenly spread tags best, by trial) or drawn at random from the candidates.
+
+A second objective, for finding the car with no initial pose: from every pose of the route
+some slot or tag should come into view within ``within_s`` seconds of driving on
+(:func:`starts_covered`); :func:`coverage_placement` adds, each round, the candidate that
+covers the most starts still uncovered. Pure numpy.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -75,6 +80,48 @@ def candidate_tags(poses: FloatArray, spacing: float = 5.0, offset: float = 3.0)
             p = np.array([x, y]) + side * offset * normal
             out.append([p[0], p[1], np.arctan2(-np.sin(yaw), -np.cos(yaw))])
     return np.array(out, float).reshape(-1, 3)
+
+
+def starts_covered(seen: np.ndarray, times: FloatArray, within_s: float) -> np.ndarray:
+    """(P,) bool: does some pose from ``k`` on, at most ``within_s`` seconds after it, see a
+    landmark (``seen`` (P,) bool)? Times ascending, seconds."""
+    seen = np.asarray(seen, bool)
+    times = np.asarray(times, float)
+    count = np.concatenate([[0], np.cumsum(seen)])  # count[k]: seen poses before k
+    last = np.searchsorted(times, times + within_s, side="right")  # first pose too late
+    return count[last] > count[np.arange(len(seen))]
+
+
+def tag_visibility(poses: FloatArray, candidates: FloatArray, sensors: SensorModel) -> np.ndarray:
+    """(C, P) bool: candidate tag ``c`` is in the front camera's view, in range and facing it
+    at route pose ``p`` (:func:`~semslam.analysis.accuracy.tag_information`)."""
+    return np.array(
+        [tag_information(poses, c[None], None, sensors)[1] > 0 for c in candidates], bool
+    ).reshape(len(candidates), len(poses))
+
+
+def coverage_placement(
+    seen: np.ndarray, times: FloatArray, visible: np.ndarray, count: int, within_s: float
+) -> list[int]:
+    """Up to ``count`` candidates (indices into ``visible`` (C, P)), each round the one that
+    adds the most covered starts (:func:`starts_covered`; the first such on a tie), until
+    every start is covered or no candidate adds one. ``seen`` (P,): what the route sees
+    without them."""
+    seen = np.asarray(seen, bool).copy()
+    chosen: list[int] = []
+    covered = starts_covered(seen, times, within_s).sum()
+    while len(chosen) < count and covered < len(seen):
+        gains = np.array(
+            [starts_covered(seen | v, times, within_s).sum() for v in visible]
+        ) - covered
+        gains[chosen] = 0
+        best = int(np.argmax(gains)) if len(gains) else 0
+        if not len(gains) or gains[best] <= 0:
+            break
+        chosen.append(best)
+        seen |= visible[best]
+        covered += gains[best]
+    return chosen
 
 
 def _sigmas(infos, poses, times, grade) -> FloatArray:
@@ -166,6 +213,26 @@ def random_placement(
     return _placed(base_infos, poses, times, candidates[chosen], grade, sensors)
 
 
+def placement_steps(
+    base_infos: FloatArray,
+    poses: FloatArray,
+    times: FloatArray,
+    tags: FloatArray,
+    grade: OdometryGrade,
+    sensors: SensorModel | None = None,
+) -> list[PlacementStep]:
+    """The route's accuracy with the first 0, 1, ..., T of ``tags`` (T, 3) added, in order
+    (as :func:`greedy_placement` reports its own choices)."""
+    tags = np.asarray(tags, float).reshape(-1, 3)
+    steps = [
+        _placed(base_infos, poses, times, tags[:k], grade, sensors) for k in range(len(tags) + 1)
+    ]
+    return [steps[0]] + [
+        replace(step, tag=tuple(float(v) for v in tag))
+        for step, tag in zip(steps[1:], tags, strict=True)
+    ]
+
+
 def _placed(base_infos, poses, times, tags: FloatArray, grade, sensors) -> PlacementStep:
     """The route's accuracy with ``tags`` (T, 3) added to the map's information."""
     infos = np.array(base_infos, float)
@@ -194,10 +261,14 @@ def placement_spread(steps: Sequence[PlacementStep]) -> dict[str, dict[str, floa
 __all__ = [
     "PlacementStep",
     "candidate_tags",
+    "coverage_placement",
     "even_placement",
     "greedy_placement",
     "placement_spread",
+    "placement_steps",
     "random_placement",
     "resample_route",
     "route_distance",
+    "starts_covered",
+    "tag_visibility",
 ]

@@ -1,7 +1,9 @@
 """`semslam plan-tags`: propose where to put K tags, and how accuracy changes with K.
 
-Reads the map and the route (TUM), runs :mod:`semslam.analysis.tag_placement` and writes
-``tag_plan.json`` (the proposed tags in order, the accuracy after each, the evenly spread
+Reads the map and the route (TUM), runs :mod:`semslam.analysis.tag_placement` (tags chosen
+for the worst predicted sigma, or for relocalization: a slot or tag in view within
+``within`` seconds from anywhere on the route) and writes ``tag_plan.json`` (the proposed
+tags in order, the accuracy and the relocalization coverage after each, the evenly spread
 and random comparisons) and ``tag_plan.png`` (the route coloured by the predicted sigma
 with the proposed tags numbered, and accuracy against K) into the output folder,
 atomically.
@@ -20,6 +22,7 @@ from semslam.errors import ConfigError, FormatError
 
 MAX_COUNT = 1000  # tags proposed: each costs a pass over every candidate
 MAX_RANDOM_TRIALS = 10000
+OBJECTIVES = ("accuracy", "relocalization")
 
 
 def plan_tags(
@@ -32,8 +35,17 @@ def plan_tags(
     spacing: float = 5.0,
     offset: float = 3.0,
     random_trials: int = 20,
+    objective: str = "accuracy",
+    within: float = 2.0,
 ) -> dict[str, Any]:
     """Greedy tag placement along ``route``; the JSON-ready result (files written).
+
+    ``objective`` "accuracy" adds, each round, the tag that most lowers the worst filtered
+    sigma; "relocalization" the one that lets the most route poses see a slot or tag within
+    ``within`` seconds of driving on (:func:`~semslam.analysis.tag_placement.
+    coverage_placement`), stopping early once every pose that can be covered is. Each
+    step reports both: its sigmas and ``relocalization_coverage``, the share of route poses
+    from which a slot or tag comes into view within ``within`` seconds.
 
     For each K in 1..count, ``random_trials`` draws of K candidates at random (seed 0)
     give the median, best and worst of the worst sigma, its 95th percentile and the mean of
@@ -41,19 +53,23 @@ def plan_tags(
 
     Raises:
         MapError / FormatError: broken map or route.
-        ConfigError: count < 1, random_trials < 1, unknown grade, non-positive spacing
-            or offset.
+        ConfigError: count < 1, random_trials < 1, unknown grade or objective,
+            non-positive spacing, offset or within.
     """
     import numpy as np
 
-    from semslam.analysis.accuracy import GRADES, MapGeometry, route_information
+    from semslam.analysis.accuracy import GRADES, MapGeometry, SensorModel, route_information
     from semslam.analysis.tag_placement import (
         candidate_tags,
+        coverage_placement,
         even_placement,
         greedy_placement,
         placement_spread,
+        placement_steps,
         random_placement,
         resample_route,
+        starts_covered,
+        tag_visibility,
     )
     from semslam.io import load_map
     from semslam.io.atomic import atomic_group, atomic_write_bytes, atomic_write_text
@@ -69,7 +85,9 @@ def plan_tags(
         )
     if grade not in GRADES:
         raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
-    for name, value in (("--spacing", spacing), ("--offset", offset)):
+    if objective not in OBJECTIVES:
+        raise ConfigError(f"--objective: choose one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    for name, value in (("--spacing", spacing), ("--offset", offset), ("--within", within)):
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
     t, poses = read_tum(route)
@@ -81,9 +99,19 @@ def plan_tags(
     if not keep_existing:
         semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
     poses, t = resample_route(poses, t, 1.0)
-    infos, _ = route_information(MapGeometry(semantic_map), poses)
+    infos, counts = route_information(MapGeometry(semantic_map), poses)
     candidates = candidate_tags(poses, spacing, offset)
-    steps = greedy_placement(infos, poses, t, candidates, count, GRADES[grade])
+    seen = (counts["slots"] > 0) | (counts["tags"] > 0)
+    visible = tag_visibility(poses, candidates, SensorModel())
+    if objective == "accuracy":
+        steps = greedy_placement(infos, poses, t, candidates, count, GRADES[grade])
+    else:
+        chosen = coverage_placement(seen, t, visible, count, within)
+        steps = placement_steps(infos, poses, t, candidates[chosen], GRADES[grade])
+    coverage = [float(starts_covered(seen, t, within).mean())]
+    for step in steps[1:]:
+        seen = seen | tag_visibility(poses, np.array([step.tag]), SensorModel())[0]
+        coverage.append(float(starts_covered(seen, t, within).mean()))
     even = [
         even_placement(infos, poses, t, candidates, k, GRADES[grade]) for k in range(1, count + 1)
     ]
@@ -104,9 +132,14 @@ def plan_tags(
         "map": os.fspath(map_path),
         "route": os.fspath(route),
         "grade": grade,
+        "objective": objective,
+        "within_s": within,
         "existing_tags": len(semantic_map.tags),
         "candidates": len(candidates),
-        "greedy": [_rounded(asdict(s)) for s in steps],
+        "greedy": [
+            _rounded(asdict(s) | {"relocalization_coverage": c})
+            for s, c in zip(steps, coverage, strict=True)
+        ],
         "evenly_spread": [_rounded(asdict(s)) for s in even],
         "random": {"trials": random_trials, "seed": 0, "steps": [_rounded(r) for r in random]},
         "proposed_tags": [

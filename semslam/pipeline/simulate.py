@@ -44,16 +44,20 @@ class SimulationSummary:
 _WORKER: dict = {}
 
 
-def _init_render_worker(preset: str, seed: int, quality: int, fmt: str) -> None:
+def _init_render_worker(
+    preset: str, seed: int, quality: int, fmt: str, placed_tags: np.ndarray | None
+) -> None:
     import cv2
 
     from semslam.rig import default_rig
     from semslam.simulation.render_front import FrontRenderer
     from semslam.simulation.render_topview import TopviewRenderer
-    from semslam.simulation.world import make_world
+    from semslam.simulation.world import make_world, with_placed_tags
 
     cv2.setNumThreads(1)
     world = make_world(preset, seed)
+    if placed_tags is not None and len(placed_tags):
+        world = with_placed_tags(world, placed_tags)
     rig = default_rig()
     _WORKER.update(
         topview=TopviewRenderer(world, rig.topview),
@@ -87,7 +91,9 @@ def _render_frames(job: tuple[str, list[tuple[int, np.ndarray, int]]]) -> int:
     return len(frames)
 
 
-def _render_images(tmp: Path, sim, config: SemslamConfig, show_progress: bool | None) -> None:
+def _render_images(
+    tmp: Path, sim, config: SemslamConfig, show_progress: bool | None, placed_tags
+) -> None:
     from semslam.simulation.scenario import frame_seed
 
     render = config.simulation.render
@@ -95,7 +101,9 @@ def _render_images(tmp: Path, sim, config: SemslamConfig, show_progress: bool | 
     frames = [(i, poses[i], frame_seed(sim.seed, sim.drive_index, i)) for i in range(len(poses))]
     chunk = 25
     jobs = [(str(tmp), frames[k : k + chunk]) for k in range(0, len(frames), chunk)]
-    init_args = (sim.world.preset, sim.world.seed, render.jpeg_quality, render.image_format)
+    init_args = (
+        sim.world.preset, sim.world.seed, render.jpeg_quality, render.image_format, placed_tags
+    )
     with progress_bar(len(frames), "rendering", show_progress) as bar:
         if render.workers <= 1:
             _init_render_worker(*init_args)
@@ -118,8 +126,10 @@ def simulate(
     images: bool,
     config: SemslamConfig,
     show_progress: bool | None = None,
+    placed_tags: np.ndarray | None = None,
 ) -> SimulationSummary:
-    """Simulate a drive and write it as a drive folder at ``out_dir``."""
+    """Simulate a drive and write it as a drive folder at ``out_dir``; ``placed_tags``
+    (K, 3) are tags added to the world (a `semslam plan-tags` plan to try out)."""
     from semslam.io import (
         DriveInfo,
         FrameIndex,
@@ -138,7 +148,7 @@ def simulate(
     started = time.perf_counter()
     tmp = prepare_drive_folder(out_dir, SimulationError)
     try:
-        sim = simulate_drive(preset, seed, drive_index, config.simulation)
+        sim = simulate_drive(preset, seed, drive_index, config.simulation, placed_tags)
         rec = sim.record
         save_rig(tmp / "rig.json", sim.rig)
         write_odometry(tmp / "odometry.csv", Odometry(rec.t, rec.odo_speed, rec.odo_yaw_rate))
@@ -158,7 +168,7 @@ def simulate(
         )
         write_frames(tmp / "frames.csv", FrameIndex(sim.frame_times, columns))
         if images:
-            _render_images(tmp, sim, config, show_progress)
+            _render_images(tmp, sim, config, show_progress, placed_tags)
         write_drive_info(
             tmp / "drive.json",
             DriveInfo(
@@ -167,7 +177,12 @@ def simulate(
                 frame_rate=config.simulation.drive.frame_rate,
                 source={
                     "generator": f"semslam {__version__}",
-                    "simulator": {"preset": preset, "seed": seed, "drive": drive_index},
+                    "simulator": {
+                        "preset": preset,
+                        "seed": seed,
+                        "drive": drive_index,
+                        "placed_tags": 0 if placed_tags is None else len(placed_tags),
+                    },
                 },
                 observations=("exact", "noisy"),
             ),

@@ -16,7 +16,7 @@ from semslam.rig import Rig, default_rig
 from semslam.simulation.driver import DriveRecord, drive_path
 from semslam.simulation.route import make_path
 from semslam.simulation.sensors import ExactSensor, NoisySensor
-from semslam.simulation.world import make_world
+from semslam.simulation.world import make_world, with_placed_tags
 from semslam.simulation.world_types import World
 from semslam.types import FrameObservations
 
@@ -57,14 +57,22 @@ def frame_seed(seed: int, drive_index: int, frame: int) -> int:
 
 
 def simulate_drive(
-    preset: str, seed: int, drive_index: int, config: SimulationConfig
+    preset: str,
+    seed: int,
+    drive_index: int,
+    config: SimulationConfig,
+    placed_tags: FloatArray | None = None,
 ) -> SimulatedDrive:
     """Build the world of (``preset``, ``seed``) and drive route ``drive_index`` through it.
 
     The seed fixes the world; the drive index picks the route, the speed
-    profile, the odometry noise and the detector noise.
+    profile, the odometry noise and the detector noise. ``placed_tags`` (K, 3): tags
+    added to the world (:func:`~semslam.simulation.world.with_placed_tags`), e.g. a
+    `semslam plan-tags` plan to try out.
     """
     world = make_world(preset, seed)
+    if placed_tags is not None and len(placed_tags):
+        world = with_placed_tags(world, placed_tags)
     rig = default_rig()
     cfg = config.drive
     path = make_path(world, drive_index, cfg.lane_offset, cfg.turn_radius)

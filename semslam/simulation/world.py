@@ -10,6 +10,7 @@ world exactly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -31,6 +32,7 @@ from semslam.types import JunctionShape, Marking, Slot, SlotKind, Tag, TagFamily
 AISLE_WIDTH = 6.0
 ROW_END_MARGIN = 0.8  # free floor between a row's last junction and its end, m
 PILLAR_SIDE = 0.6
+TAG36H11_CODES = 587
 LABEL_CHARS = "ABCDEFGHJKLMNPQRSTUVWXYZ"  # no I, O: painted they read as 1, 0
 
 
@@ -300,7 +302,7 @@ def _place_tags(faces, n_tags, rng) -> list[Tag]:
     """Up to ``n_tags`` tag36h11 tags, row-end faces first, spread by random order."""
     order = sorted(range(len(faces)), key=lambda i: (faces[i][2], rng.random()))
     chosen = order[: min(n_tags, len(faces))]
-    ids = rng.choice(587, size=len(chosen), replace=False)  # tag36h11 has 587 codes
+    ids = rng.choice(TAG36H11_CODES, size=len(chosen), replace=False)
     tags = []
     for tag_id, i in zip(ids, chosen, strict=True):
         centre, yaw, _ = faces[i]
@@ -317,4 +319,31 @@ def _place_tags(faces, n_tags, rng) -> list[Tag]:
     return tags
 
 
-__all__ = ["PRESETS", "Preset", "make_world"]
+PLACED_TAG_SIZE = 0.5  # m, as the world's own tags
+PLACED_TAG_HEIGHT = 1.6  # m, tag centre above the ground
+
+
+def with_placed_tags(world: World, poses: FloatArray) -> World:
+    """The world with tag36h11 tags added at ``poses`` (K, 3: x, y m and the yaw they face,
+    map frame; e.g. a `semslam plan-tags` plan), numbered with the lowest IDs the world does
+    not use, free-standing (no pillar), 0.5 m, centre 1.6 m above the ground.
+
+    Raises:
+        SimulationError: more tags than tag36h11 has codes left.
+    """
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    used = {t.tag_id for t in world.tags if t.family is TagFamily.TAG36H11}
+    free = [i for i in range(TAG36H11_CODES) if i not in used]
+    if len(poses) > len(free):
+        raise SimulationError(
+            f"{len(poses)} tags to place, but tag36h11 has only {len(free)} codes left"
+        )
+    added = tuple(
+        Tag(TagFamily.TAG36H11, tag_id, PLACED_TAG_SIZE, pose.copy(), PLACED_TAG_HEIGHT,
+            np.zeros((3, 3)))
+        for tag_id, pose in zip(free, poses, strict=False)
+    )
+    return dataclasses.replace(world, tags=world.tags + added)
+
+
+__all__ = ["PRESETS", "Preset", "make_world", "with_placed_tags"]

@@ -7,6 +7,7 @@ import numpy as np
 from semslam.analysis.accuracy import (
     GRADES,
     MapGeometry,
+    SensorModel,
     filter_route,
     position_sigma,
     route_information,
@@ -14,11 +15,14 @@ from semslam.analysis.accuracy import (
 )
 from semslam.analysis.tag_placement import (
     candidate_tags,
+    coverage_placement,
     even_placement,
     greedy_placement,
     placement_spread,
     random_placement,
     resample_route,
+    starts_covered,
+    tag_visibility,
 )
 from semslam.types import SemanticMap, Slot, SlotKind
 
@@ -99,7 +103,6 @@ def test_even_placement_places_as_many_tags_as_asked_up_to_every_candidate():
 
 def test_a_placed_tag_counts_as_often_as_it_is_detected():
     """A candidate tag is worth the map's own tags' information times the detection rate."""
-    from semslam.analysis.accuracy import SensorModel
 
     poses, t = _route()
     infos, _ = route_information(MapGeometry(_map()), poses)
@@ -114,3 +117,35 @@ def test_a_placed_tag_counts_as_often_as_it_is_detected():
     alone = random_placement(infos, poses, t, np.array([first.tag]), 1, grade,
                              np.random.default_rng(0), half)
     np.testing.assert_allclose(first.worst_m, alone.worst_m, rtol=1e-9)
+
+
+def test_a_start_is_covered_when_a_landmark_comes_into_view_within_the_time_given():
+    times = np.arange(8.0)  # one pose a second
+    seen = np.array([0, 0, 0, 1, 0, 0, 0, 0], bool)
+    np.testing.assert_array_equal(
+        starts_covered(seen, times, 2.0), [0, 1, 1, 1, 0, 0, 0, 0]
+    )
+    np.testing.assert_array_equal(starts_covered(seen, times, 0.0), seen)
+    assert not starts_covered(np.zeros(8, bool), times, 100.0).any()
+
+
+def test_coverage_tags_cover_the_stretch_that_sees_nothing():
+    """The straight route sees its one slot only in its first metres; tags chosen for
+    coverage make every start see a slot or tag within 2 s, each tag needed."""
+    poses, t = _route()
+    _, counts = route_information(MapGeometry(_map()), poses)
+    seen = (counts["slots"] > 0) | (counts["tags"] > 0)
+    assert seen[:2].all() and not seen[10:].any()
+    cands = candidate_tags(poses, spacing=5.0, offset=3.0)
+    visible = tag_visibility(poses, cands, SensorModel())
+    assert visible.shape == (len(cands), len(poses))
+    chosen = coverage_placement(seen, t, visible, 50, 2.0)
+    with_tags = seen | visible[chosen].any(axis=0)
+    before, after = starts_covered(seen, t, 2.0), starts_covered(with_tags, t, 2.0)
+    # every start but the last metres, where no candidate stands ahead within view
+    assert after[poses[:, 0] <= 70.0].all() and after.sum() > before.sum() + 0.7 * len(t)
+    for k in range(len(chosen)):  # every tag adds covered starts
+        fewer = seen | visible[chosen[:k] + chosen[k + 1 :]].any(axis=0)
+        assert starts_covered(fewer, t, 2.0).sum() < after.sum()
+    assert coverage_placement(seen, t, visible, 2, 2.0) == chosen[:2]  # greedy: a prefix
+    assert coverage_placement(with_tags, t, visible, 50, 2.0) == []  # nothing left to add

@@ -123,3 +123,19 @@ def test_noisy_observations_follow_the_configured_rates():
     assert 0.16 < wrong / readable < 0.24  # 20 % wrong IDs
     assert 0.045 < np.std(np.concatenate(errors)) < 0.055  # 5 cm corner noise
     assert labels  # world labels exist
+
+
+def test_a_placed_tag_ahead_of_the_car_is_seen():
+    """A tag placed 8 m ahead of the start, facing the car, is in the first frames'
+    exact tag observations; the route and the world's own tags are unchanged."""
+    cfg = SimulationConfig()
+    cfg = cfg.model_copy(update={"drive": cfg.drive.model_copy(update={"max_duration": 5.0})})
+    bare = simulate_drive("small", 2, 0, cfg)
+    x, y, yaw = bare.frame_poses[0]
+    ahead = np.array([[x + 8 * math.cos(yaw), y + 8 * math.sin(yaw), wrap_angle(yaw + math.pi)]])
+    placed = simulate_drive("small", 2, 0, cfg, ahead)
+    new_id = placed.world.tags[-1].tag_id
+    assert len(placed.world.tags) == len(bare.world.tags) + 1
+    np.testing.assert_array_equal(placed.frame_poses, bare.frame_poses)
+    assert any(t.tag_id == new_id for t in placed.exact[0].tags)
+    assert not any(t.tag_id == new_id for f in bare.exact for t in f.tags)

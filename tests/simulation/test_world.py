@@ -79,3 +79,20 @@ def test_large_worlds_paint_each_slot_id_once(seed):
     assert len(set(labels)) == len(labels)
     assert all(2 <= len(label) <= 4 for label in labels)
 
+
+
+def test_placed_tags_take_the_lowest_free_ids_and_keep_the_world():
+    from semslam.simulation.world import with_placed_tags
+
+    world = make_world("small", 2)
+    poses = np.array([[3.0, 4.0, 0.5], [6.0, -1.0, -2.0]])
+    placed = with_placed_tags(world, poses)
+    assert placed.tags[: len(world.tags)] == world.tags and placed.slots == world.slots
+    new = placed.tags[len(world.tags):]
+    used = {t.tag_id for t in world.tags}
+    free = [i for i in range(587) if i not in used][:2]
+    assert [t.tag_id for t in new] == free
+    np.testing.assert_array_equal(np.array([t.mTt for t in new]), poses)
+    assert all(t.size == 0.5 and t.height == 1.6 for t in new)
+    with pytest.raises(SimulationError, match="codes left"):
+        with_placed_tags(world, np.zeros((600, 3)))
