@@ -167,15 +167,16 @@ def start_observability(drive_dir: Path, starts: int, seed: int) -> dict:
             "only_lines_within_2s": anything - landmarks, "nothing_within_2s": starts - anything}
 
 
-def plan_relocalization_tags(root: Path, seed: int, count: int) -> dict:
-    """Up to ``count`` tags planned for relocalization (within 2 s) on drive 0's route
-    through the bare `garage` world ``seed``: the plan's JSON (its file under ``root``)."""
+def plan_relocalization_tags(root: Path, seed: int, count: int, within: float = 2.0) -> dict:
+    """Up to ``count`` tags planned for relocalization (a slot or tag within ``within`` s) on
+    drive 0's route through the bare `garage` world ``seed``: the plan's JSON (its file under
+    ``root``)."""
     bare = root / f"s{seed}bare"
     run(["simulate", str(bare), "--preset", "garage", "--seed", str(seed), "--no-images"])
     out = root / f"s{seed}plan"
     run(["plan-tags", str(bare / "world.json"), "--route", str(bare / "groundtruth.tum"),
          "-o", str(out), "--count", str(count), "--objective", "relocalization",
-         "--random-trials", "1"])
+         "--within", str(within), "--random-trials", "1"])
     return json.loads((out / "tag_plan.json").read_text()) | {"file": str(out / "tag_plan.json")}
 
 
@@ -202,6 +203,8 @@ def main() -> None:
                         help="only count what the random starts can see (no map, no filter)")
     parser.add_argument("--plan-tags", type=int, default=0, metavar="K",
                         help="add up to K tags planned for relocalization to the world")
+    parser.add_argument("--plan-within", type=float, default=2.0, metavar="S",
+                        help="the plan's time to see a slot or tag, s (default 2)")
     parser.add_argument("--trials-only", action="store_true",
                         help="skip the localization runs; only the relocalization trials")
     args = parser.parse_args()
@@ -211,7 +214,7 @@ def main() -> None:
         for seed in args.seeds:
             tags = None
             if args.plan_tags:
-                plan = plan_relocalization_tags(root, seed, args.plan_tags)
+                plan = plan_relocalization_tags(root, seed, args.plan_tags, args.plan_within)
                 tags = plan["file"]
                 print(json.dumps({"seed": seed, "planned_tags": len(plan["proposed_tags"]),
                                   "coverage": [s["relocalization_coverage"]
