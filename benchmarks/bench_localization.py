@@ -9,8 +9,9 @@ trials through the library (100 random starts with `--init auto`; kidnaps of 10 
         [--observability-only] [--plan-tags K] [--trials-only]
 
 ``--plan-tags K``: first plan up to K tags for relocalization on drive 0's route through the
-bare world (`semslam plan-tags --objective relocalization`), then simulate both drives with
-them (`semslam simulate --tags`): what the garage would give with the tags semslam proposes.
+bare world (`semslam plan-tags --objective relocalization`; ``--plan-routes 0 1``: on both
+drives' routes), then simulate both drives with them (`semslam simulate --tags`): what the
+garage would give with the tags semslam proposes.
 """
 
 from __future__ import annotations
@@ -178,14 +179,25 @@ def start_observability(drive_dir: Path, starts: int, seed: int) -> dict:
             "only_lines_within_2s": anything - landmarks, "nothing_within_2s": starts - anything}
 
 
-def plan_relocalization_tags(root: Path, seed: int, count: int, within: float = 2.0) -> dict:
+def plan_relocalization_tags(root: Path, seed: int, count: int, within: float = 2.0,
+                             routes: tuple[int, ...] = (0,)) -> dict:
     """Up to ``count`` tags planned for relocalization (a slot or tag within ``within`` s) on
-    drive 0's route through the bare `garage` world ``seed``: the plan's JSON (its file under
-    ``root``)."""
-    bare = root / f"s{seed}bare"
-    run(["simulate", str(bare), "--preset", "garage", "--seed", str(seed), "--no-images"])
+    the routes of drives ``routes`` through the bare `garage` world ``seed`` (several routes
+    joined end to end, 1,000 s apart): the plan's JSON (its file under ``root``)."""
+    from semslam.io import read_tum, write_tum
+
+    times, poses = [], []
+    for k in routes:
+        bare = root / f"s{seed}bare{k}"
+        run(["simulate", str(bare), "--preset", "garage", "--seed", str(seed), "--drive", str(k),
+             "--no-images"])
+        t, p = read_tum(bare / "groundtruth.tum")
+        times.append(t + (times[-1][-1] + 1000.0 if times else 0.0))
+        poses.append(p)
+    route = root / f"s{seed}routes.tum"
+    write_tum(route, np.concatenate(times), np.concatenate(poses))
     out = root / f"s{seed}plan"
-    run(["plan-tags", str(bare / "world.json"), "--route", str(bare / "groundtruth.tum"),
+    run(["plan-tags", str(bare / "world.json"), "--route", str(route),
          "-o", str(out), "--count", str(count), "--objective", "relocalization",
          "--within", str(within), "--random-trials", "1"])
     return json.loads((out / "tag_plan.json").read_text()) | {"file": str(out / "tag_plan.json")}
@@ -216,6 +228,9 @@ def main() -> None:
                         help="add up to K tags planned for relocalization to the world")
     parser.add_argument("--plan-within", type=float, default=2.0, metavar="S",
                         help="the plan's time to see a slot or tag, s (default 2)")
+    parser.add_argument("--plan-routes", type=int, nargs="+", default=[0], metavar="DRIVE",
+                        help="the drives whose routes the plan covers (default: 0, the one "
+                        "mapped)")
     parser.add_argument("--trials-only", action="store_true",
                         help="skip the localization runs; only the relocalization trials")
     args = parser.parse_args()
@@ -225,7 +240,8 @@ def main() -> None:
         for seed in args.seeds:
             tags = None
             if args.plan_tags:
-                plan = plan_relocalization_tags(root, seed, args.plan_tags, args.plan_within)
+                plan = plan_relocalization_tags(root, seed, args.plan_tags, args.plan_within,
+                                                tuple(args.plan_routes))
                 tags = plan["file"]
                 print(json.dumps({"seed": seed, "planned_tags": len(plan["proposed_tags"]),
                                   "coverage": [s["relocalization_coverage"]
