@@ -45,7 +45,8 @@ def plan_tags(
     ``within`` seconds of driving on (:func:`~semslam.analysis.tag_placement.
     coverage_placement`), stopping early once every pose that can be covered is. Each
     step reports both: its sigmas and ``relocalization_coverage``, the share of route poses
-    from which a slot or tag comes into view within ``within`` seconds.
+    from which a slot or tag comes into view within ``within`` seconds (a slot counts when
+    its entrance is in the top view: detectors report whole slots only).
 
     For each K in 1..count, ``random_trials`` draws of K candidates at random (seed 0)
     give the median, best and worst of the worst sigma, its 95th percentile and the mean of
@@ -99,8 +100,12 @@ def plan_tags(
     if not keep_existing:
         semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
     poses, t = resample_route(poses, t, 1.0)
-    infos, counts = route_information(MapGeometry(semantic_map), poses)
+    geometry = MapGeometry(semantic_map)
+    infos, _ = route_information(geometry, poses)
     candidates = candidate_tags(poses, spacing, offset)
+    # relocalization needs whole slots (the detectors report a slot only with its entrance
+    # in view), not corners
+    _, counts = route_information(geometry, poses, SensorModel(slot_rule="entrance"))
     seen = (counts["slots"] > 0) | (counts["tags"] > 0)
     visible = tag_visibility(poses, candidates, SensorModel())
     if objective == "accuracy":
