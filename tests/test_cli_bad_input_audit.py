@@ -174,7 +174,7 @@ def test_plan_tags_refuses_an_unknown_objective_and_a_bad_time(small_drive, tmp_
     route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
     result = _run("plan-tags", small_drive / "world.json", "--route", route,
                   "-o", tmp_path / "p", "--within", "0")
-    _fails(result, "--within")
+    _fails(result, "--within", "seconds")
     result = _run("plan-tags", small_drive / "world.json", "--route", route,
                   "-o", tmp_path / "p", "--objective", "beauty")
     assert result.exit_code == 2 and "Traceback" not in result.output

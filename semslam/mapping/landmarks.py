@@ -60,17 +60,16 @@ def label_probability(
     So one reading gives its own confidence, readings that agree add their log-odds, and
     readings of other labels take it away. Confidences are clipped to [0.001, 0.999].
 
-    Returns 0 when ``label`` was never read.
+    Returns 0 when ``label`` was never read. An alphabet no larger than the number of
+    distinct labels read is taken as one label larger.
     """
-    k = int(alphabet)
+    readings = [(read, min(max(float(c), 1e-3), 0.999)) for read, c in readings]
+    k = max(int(alphabet), len({read for read, _ in readings}) + 1)
     score: dict[str, float] = defaultdict(float)  # log(likelihood / that of an unread label)
-    for read, confidence in readings:
-        c = min(max(float(confidence), 1e-3), 0.999)
+    for read, c in readings:
         score[read] += math.log(c / (1.0 - c)) + math.log(k - 1)
     if label not in score:
         return 0.0
-    if len(score) >= k:
-        raise ValueError(f"label_probability: {len(score)} labels read, alphabet of {k}")
     top = max(max(score.values()), 0.0)
     total = sum(math.exp(v - top) for v in score.values()) + (k - len(score)) * math.exp(-top)
     return math.exp(score[label] - top) / total

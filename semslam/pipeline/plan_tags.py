@@ -88,9 +88,12 @@ def plan_tags(
         raise ConfigError(f"--grade: choose one of {', '.join(GRADES)}, got {grade!r}")
     if objective not in OBJECTIVES:
         raise ConfigError(f"--objective: choose one of {', '.join(OBJECTIVES)}, got {objective!r}")
-    for name, value in (("--spacing", spacing), ("--offset", offset), ("--within", within)):
+    for name, value, unit in (
+        ("--spacing", spacing, "metres"), ("--offset", offset, "metres"),
+        ("--within", within, "seconds"),
+    ):
         if not (math.isfinite(value) and value > 0):
-            raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
+            raise ConfigError(f"{name}: must be a positive number of {unit}, got {value}")
     t, poses = read_tum(route)
     xy = np.asarray(poses, dtype=float).reshape(len(t), -1)[:, :2]
     length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(t) >= 2 else 0.0

@@ -77,3 +77,5 @@ def test_one_reading_gives_its_own_confidence_and_agreement_adds_up():
         assert 0.0 < label_probability([("B17", confidence)], "B17") < 1.0
     readings = list(itertools.repeat(("B17", 1.0), 500))  # no overflow
     assert label_probability(readings, "B17") == pytest.approx(1.0)
+    many = [(f"L{i}", 0.6) for i in range(150)]  # more labels than the alphabet: no error
+    assert 0.0 < label_probability(many, "L0") < 0.05
