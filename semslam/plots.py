@@ -307,11 +307,13 @@ def tag_plan_figure(
     steps: Sequence,
     even: Sequence,
     random: Sequence[dict] | None = None,
+    coverage: Sequence[float] | None = None,
 ) -> bytes:
     """Proposed tags (numbered, in order) along the route, and the worst / 95th-percentile
     sigma against the number of tags, greedy and evenly spread
     (:class:`~semslam.analysis.tag_placement.PlacementStep` lists) and, if given, random
-    (``{"count": K, "worst_m": {"median", "best", "worst"}}`` per K: median and range)."""
+    (``{"count": K, "worst_m": {"median", "best", "worst"}}`` per K: median and range) and
+    the relocalization coverage of each greedy step (share of the route, right axis)."""
     plt = _plt()
 
     fig, (ax, bx) = plt.subplots(
@@ -347,6 +349,10 @@ def tag_plan_figure(
     bx.set_ylabel("filtered position sigma on the route, m")
     bx.legend()
     bx.grid(alpha=0.3)
+    if coverage is not None:
+        cx = bx.twinx()
+        cx.plot(ks, [100.0 * c for c in coverage], "d:", color="tab:purple")
+        cx.set_ylabel("route poses relocalizable from (purple), %", color="tab:purple")
     return _png(fig)
 
 

@@ -158,7 +158,7 @@ def plan_tags(
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    picture = tag_plan_figure(semantic_map, poses, steps, even, random)
+    picture = tag_plan_figure(semantic_map, poses, steps, even, random, coverage)
     with atomic_group():  # both files or neither
         atomic_write_bytes(out / "tag_plan.png", picture)
         atomic_write_text(out / "tag_plan.json",
