@@ -95,6 +95,7 @@ def starts_covered(seen: np.ndarray, times: FloatArray, within_s: float) -> np.n
 def tag_visibility(poses: FloatArray, candidates: FloatArray, sensors: SensorModel) -> np.ndarray:
     """(C, P) bool: candidate tag ``c`` is in the front camera's view, in range and facing it
     at route pose ``p`` (:func:`~semslam.analysis.accuracy.tag_information`)."""
+    candidates = np.asarray(candidates, float).reshape(-1, 3)
     return np.array(
         [tag_information(poses, c[None], None, sensors)[1] > 0 for c in candidates], bool
     ).reshape(len(candidates), len(poses))

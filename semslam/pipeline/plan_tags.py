@@ -108,18 +108,20 @@ def plan_tags(
     candidates = candidate_tags(poses, spacing, offset)
     # relocalization needs whole slots (the detectors report a slot only with its entrance
     # in view), not corners
-    _, counts = route_information(geometry, poses, SensorModel(slot_rule="entrance"))
+    whole_slots = SensorModel(slot_rule="entrance")
+    _, counts = route_information(geometry, poses, whole_slots)
     seen = (counts["slots"] > 0) | (counts["tags"] > 0)
-    visible = tag_visibility(poses, candidates, SensorModel())
     if objective == "accuracy":
         steps = greedy_placement(infos, poses, t, candidates, count, GRADES[grade])
     else:
+        visible = tag_visibility(poses, candidates, whole_slots)
         chosen = coverage_placement(seen, t, visible, count, within)
         steps = placement_steps(infos, poses, t, candidates[chosen], GRADES[grade])
-    coverage = [float(starts_covered(seen, t, within).mean())]
-    for step in steps[1:]:
-        seen = seen | tag_visibility(poses, np.array([step.tag]), SensorModel())[0]
-        coverage.append(float(starts_covered(seen, t, within).mean()))
+    added = tag_visibility(poses, np.array([s.tag for s in steps[1:]]), whole_slots)
+    coverage = [
+        float(starts_covered(seen | added[:k].any(axis=0), t, within).mean())
+        for k in range(len(steps))
+    ]
     even = [
         even_placement(infos, poses, t, candidates, k, GRADES[grade]) for k in range(1, count + 1)
     ]

@@ -331,7 +331,6 @@ def test_a_line_detection_with_a_nan_end_is_left_out(small):
     assert all(np.isfinite([m.a, m.b]).all() for m in result.map.markings)
 
 
-
 def test_a_slot_read_once_unsurely_exports_that_doubt(small):
     """A slot whose ID is read in one frame, at 0.02, exports its label at about 0.02 (the
     share of the votes gave 1.0); a slot read in many frames is sure of its label."""

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import SimulationError
-from semslam.simulation.world import make_world
+from semslam.simulation.world import make_world, with_placed_tags
 from semslam.types import JunctionShape, SlotKind
 
 
@@ -80,10 +80,7 @@ def test_large_worlds_paint_each_slot_id_once(seed):
     assert all(2 <= len(label) <= 4 for label in labels)
 
 
-
 def test_placed_tags_take_the_lowest_free_ids_and_keep_the_world():
-    from semslam.simulation.world import with_placed_tags
-
     world = make_world("small", 2)
     poses = np.array([[3.0, 4.0, 0.5], [6.0, -1.0, -2.0]])
     placed = with_placed_tags(world, poses)
