@@ -10,7 +10,8 @@ trials through the library (100 random starts with `--init auto`; kidnaps of 10 
 
 ``--plan-tags K``: first plan up to K tags for relocalization on drive 0's route through the
 bare world (`semslam plan-tags --objective relocalization`; ``--plan-routes 0 1``: on both
-drives' routes), then simulate both drives with them (`semslam simulate --tags`): what the
+drives' routes; either way only tags drive 0 sees, `--mapping-route`, since drive 0 is the
+one mapped), then simulate both drives with them (`semslam simulate --tags`): what the
 garage would give with the tags semslam proposes.
 """
 
@@ -183,14 +184,16 @@ def plan_relocalization_tags(root: Path, seed: int, count: int, within: float = 
                              routes: tuple[int, ...] = (0,)) -> dict:
     """Up to ``count`` tags planned for relocalization (a slot or tag within ``within`` s) on
     the routes of drives ``routes`` through the bare `garage` world ``seed`` (several routes
-    joined end to end, 1,000 s apart): the plan's JSON (its file under ``root``)."""
+    joined end to end, 1,000 s apart), each seen by drive 0, the one mapped: the plan's JSON
+    (its file under ``root``)."""
     from semslam.io import read_tum, write_tum
 
     times, poses = [], []
+    for k in sorted(set(routes) | {0}):
+        run(["simulate", str(root / f"s{seed}bare{k}"), "--preset", "garage", "--seed", str(seed),
+             "--drive", str(k), "--no-images"])
     for k in routes:
         bare = root / f"s{seed}bare{k}"
-        run(["simulate", str(bare), "--preset", "garage", "--seed", str(seed), "--drive", str(k),
-             "--no-images"])
         t, p = read_tum(bare / "groundtruth.tum")
         times.append(t + (times[-1][-1] + 1000.0 if times else 0.0))
         poses.append(p)
@@ -199,7 +202,8 @@ def plan_relocalization_tags(root: Path, seed: int, count: int, within: float = 
     out = root / f"s{seed}plan"
     run(["plan-tags", str(bare / "world.json"), "--route", str(route),
          "-o", str(out), "--count", str(count), "--objective", "relocalization",
-         "--within", str(within), "--random-trials", "1"])
+         "--within", str(within), "--random-trials", "1",
+         "--mapping-route", str(root / f"s{seed}bare0" / "groundtruth.tum")])
     return json.loads((out / "tag_plan.json").read_text()) | {"file": str(out / "tag_plan.json")}
 
 
@@ -244,6 +248,7 @@ def main() -> None:
                                                 tuple(args.plan_routes))
                 tags = plan["file"]
                 print(json.dumps({"seed": seed, "planned_tags": len(plan["proposed_tags"]),
+                                  "candidates_unmapped": plan["candidates_unmapped"],
                                   "coverage": [s["relocalization_coverage"]
                                                for s in plan["greedy"]]}), flush=True)
             if args.observability_only:

@@ -614,6 +614,11 @@ def plan_tags_command(
     within: Annotated[
         float, typer.Option(metavar="SECONDS", help="Relocalization: time allowed to see one.")
     ] = 2.0,
+    mapping_route: Annotated[
+        Path | None,
+        typer.Option(metavar="TRAJ.tum", help="The route of the drive that will map the tags: "
+                     "only tags it sees are proposed."),
+    ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Where to put COUNT tags, and how accuracy changes with their number.
@@ -626,7 +631,8 @@ def plan_tags_command(
     try:
         out = _output_folder(output)
         result = plan_tags(map_path, route, out, count, grade.value, keep_existing,
-                           random_trials=random_trials, objective=objective.value, within=within)
+                           random_trials=random_trials, objective=objective.value, within=within,
+                           mapping_route=mapping_route)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:

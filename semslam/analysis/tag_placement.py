@@ -11,7 +11,9 @@ evenly spread tags best, by trial) or drawn at random from the candidates.
 A second objective, for finding the car with no initial pose: from every pose of the route
 some slot or tag should come into view within ``within_s`` seconds of driving on
 (:func:`starts_covered`); :func:`coverage_placement` adds, each round, the candidate that
-covers the most starts still uncovered. Pure numpy.
+covers the most starts still uncovered. A tag helps the localizer only once it is in the
+map, so candidates the mapping drive would not see often enough can be set aside first
+(:func:`seen_often_enough`). Pure numpy.
 """
 
 from __future__ import annotations
@@ -99,6 +101,15 @@ def tag_visibility(poses: FloatArray, candidates: FloatArray, sensors: SensorMod
     return np.array(
         [tag_information(poses, c[None], None, sensors)[1] > 0 for c in candidates], bool
     ).reshape(len(candidates), len(poses))
+
+
+def seen_often_enough(
+    poses: FloatArray, candidates: FloatArray, sensors: SensorModel, minimum: int
+) -> np.ndarray:
+    """(C,) bool: candidate ``c`` is in view (:func:`tag_visibility`) from at least
+    ``minimum`` of ``poses`` (P, 3; x, y in m, yaw in rad, map frame), the route of the drive
+    that maps the garage: a tag it never sees is never in the map."""
+    return tag_visibility(poses, candidates, sensors).sum(axis=1) >= minimum
 
 
 def coverage_placement(
@@ -270,6 +281,7 @@ __all__ = [
     "random_placement",
     "resample_route",
     "route_distance",
+    "seen_often_enough",
     "starts_covered",
     "tag_visibility",
 ]

@@ -6,7 +6,9 @@ for the worst predicted sigma, or for relocalization: a slot or tag in view with
 tags in order, the accuracy and the relocalization coverage after each, the evenly spread
 and random comparisons) and ``tag_plan.png`` (the route coloured by the predicted sigma
 with the proposed tags numbered, and accuracy against K) into the output folder,
-atomically.
+atomically. With ``mapping_route`` (the route of the drive that will map the garage), only
+candidates that drive sees from at least :data:`MIN_MAPPING_SIGHTINGS` of its poses are
+proposed: a tag the mapper never sees is not in the map the localizer reads.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from semslam.errors import ConfigError, FormatError
 MAX_COUNT = 1000  # tags proposed: each costs a pass over every candidate
 MAX_RANDOM_TRIALS = 10000
 OBJECTIVES = ("accuracy", "relocalization")
+MIN_MAPPING_SIGHTINGS = 3
+"""Poses of the mapping route (1 m apart) that must see a candidate for it to be proposed."""
 
 
 def plan_tags(
@@ -37,6 +41,7 @@ def plan_tags(
     random_trials: int = 20,
     objective: str = "accuracy",
     within: float = 2.0,
+    mapping_route: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Greedy tag placement along ``route``; the JSON-ready result (files written).
 
@@ -48,12 +53,16 @@ def plan_tags(
     from which a slot or tag comes into view within ``within`` seconds (a slot counts when
     its entrance is in the top view: detectors report whole slots only).
 
+    ``mapping_route`` (TUM): the route of the drive that will map the garage; candidates it
+    sees from fewer than :data:`MIN_MAPPING_SIGHTINGS` poses are not proposed (``route``
+    may be several drives' routes, ``mapping_route`` one of them).
+
     For each K in 1..count, ``random_trials`` draws of K candidates at random (seed 0)
     give the median, best and worst of the worst sigma, its 95th percentile and the mean of
     the route's worst 5 % (``random``).
 
     Raises:
-        MapError / FormatError: broken map or route.
+        MapError / FormatError: broken map or route (or mapping route).
         ConfigError: count < 1, random_trials < 1, unknown grade or objective,
             non-positive spacing, offset or within.
     """
@@ -69,12 +78,12 @@ def plan_tags(
         placement_steps,
         random_placement,
         resample_route,
+        seen_often_enough,
         starts_covered,
         tag_visibility,
     )
     from semslam.io import load_map
     from semslam.io.atomic import atomic_group, atomic_write_bytes, atomic_write_text
-    from semslam.io.tum import read_tum
     from semslam.plots import tag_plan_figure
     from semslam.types import SemanticMap
 
@@ -94,11 +103,8 @@ def plan_tags(
     ):
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of {unit}, got {value}")
-    t, poses = read_tum(route)
-    xy = np.asarray(poses, dtype=float).reshape(len(t), -1)[:, :2]
-    length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(t) >= 2 else 0.0
-    if not (math.isfinite(length) and length > 0):
-        raise FormatError(f"{os.fspath(route)}: the route needs at least two poses and some length")
+    t, poses = _read_route(route)
+    mapping = None if mapping_route is None else _read_route(mapping_route)
     semantic_map = load_map(map_path)
     if not keep_existing:
         semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
@@ -109,6 +115,17 @@ def plan_tags(
     # relocalization needs whole slots (the detectors report a slot only with its entrance
     # in view), not corners
     whole_slots = SensorModel(slot_rule="entrance")
+    unmapped = 0
+    if mapping is not None:
+        mapping_poses, _ = resample_route(mapping[1], mapping[0], 1.0)
+        mapped = seen_often_enough(mapping_poses, candidates, whole_slots, MIN_MAPPING_SIGHTINGS)
+        unmapped = int(np.sum(~mapped))
+        candidates = candidates[mapped]
+        if not len(candidates):
+            raise ConfigError(
+                f"--mapping-route: {os.fspath(mapping_route)} sees none of the "
+                f"{unmapped} candidate tags beside --route"
+            )
     _, counts = route_information(geometry, poses, whole_slots)
     seen = (counts["slots"] > 0) | (counts["tags"] > 0)
     if objective == "accuracy":
@@ -145,7 +162,9 @@ def plan_tags(
         "objective": objective,
         "within_s": within,
         "existing_tags": len(semantic_map.tags),
+        "mapping_route": None if mapping_route is None else os.fspath(mapping_route),
         "candidates": len(candidates),
+        "candidates_unmapped": unmapped,
         "greedy": [
             _rounded(asdict(s) | {"relocalization_coverage": c})
             for s, c in zip(steps, coverage, strict=True)
@@ -167,6 +186,20 @@ def plan_tags(
                           json.dumps(result, indent=2, allow_nan=False) + "\n")
     result["files"] = [os.fspath(out / "tag_plan.json"), os.fspath(out / "tag_plan.png")]
     return result
+
+
+def _read_route(path: str | os.PathLike[str]):
+    """Times (N,) and poses (N, 3) of a TUM route with at least two poses and some length."""
+    import numpy as np
+
+    from semslam.io.tum import read_tum
+
+    t, poses = read_tum(path)
+    poses = np.asarray(poses, dtype=float)
+    length = float(np.sum(np.hypot(*np.diff(poses[:, :2], axis=0).T))) if len(t) >= 2 else 0.0
+    if not (math.isfinite(length) and length > 0):
+        raise FormatError(f"{os.fspath(path)}: the route needs at least two poses and some length")
+    return t, poses
 
 
 def _rounded(d: dict[str, Any]) -> dict[str, Any]:
