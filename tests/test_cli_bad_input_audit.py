@@ -180,6 +180,23 @@ def test_plan_tags_refuses_an_unknown_objective_and_a_bad_time(small_drive, tmp_
     assert result.exit_code == 2 and "Traceback" not in result.output
 
 
+def test_plan_tags_refuses_a_mapping_route_that_sees_no_candidate(small_drive, tmp_path):
+    """The mapping drive goes the other way, so it faces none of the candidates (they face
+    the cars on --route): nothing to propose, and nothing written."""
+    x = np.arange(0.0, 30.5, 0.5)
+    route = _route(tmp_path / "r.tum", np.column_stack([x, 0 * x]))
+    back = tmp_path / "back.tum"
+    write_tum(back, x * 0.1, np.column_stack([x[::-1], 0 * x, np.full_like(x, np.pi)]))
+    out = tmp_path / "p"
+    result = _run("plan-tags", small_drive / "world.json", "--route", route, "-o", out,
+                  "--mapping-route", back, "--random-trials", "1")
+    _fails(result, "--mapping-route", str(back), "sees none of the 10 candidate tags")
+    assert not (out / "tag_plan.json").exists()
+    result = _run("plan-tags", small_drive / "world.json", "--route", route, "-o", out,
+                  "--mapping-route", tmp_path / "missing.tum", "--random-trials", "1")
+    _fails(result, "missing.tum")
+
+
 def test_plan_tags_caps_count(small_drive, tmp_path):
     route = _route(tmp_path / "r.tum", [(0, 0), (5, 0)])
     result = _run("plan-tags", small_drive / "world.json", "--route", route,

@@ -127,15 +127,17 @@ def test_accuracy_and_plan_tags_on_a_small_world(tmp_path):
 
 def test_tags_planned_for_relocalization_are_seen_by_the_simulated_drive(tmp_path):
     """plan-tags --objective relocalization on a drive's route, then the same drive
-    simulated with the plan: coverage rises with every tag, and the drive sees them."""
+    simulated with the plan: coverage rises with every tag, and the drive (the mapping
+    route) sees every one."""
     bare = tmp_path / "bare"
     assert _run("simulate", bare, "--preset", "small", "--seed", "2", "--no-images",
                 "--no-progress").exit_code == 0
     result = _run("plan-tags", bare / "world.json", "--route", bare / "groundtruth.tum",
                   "-o", tmp_path / "plan", "--count", "3", "--objective", "relocalization",
-                  "--random-trials", "1", "--json")
+                  "--random-trials", "1", "--mapping-route", bare / "groundtruth.tum", "--json")
     assert result.exit_code == 0, result.output
     plan = json.loads(result.stdout)
+    assert plan["mapping_route"] == str(bare / "groundtruth.tum") and plan["candidates"] > 0
     coverage = [s["relocalization_coverage"] for s in plan["greedy"]]
     assert plan["objective"] == "relocalization" and len(plan["proposed_tags"]) >= 1
     assert all(b > a for a, b in zip(coverage, coverage[1:], strict=False))
@@ -150,4 +152,4 @@ def test_tags_planned_for_relocalization_are_seen_by_the_simulated_drive(tmp_pat
     seen = set()
     for line in (placed / "observations" / "exact.jsonl").read_text().splitlines():
         seen |= {t["id"] for t in json.loads(line).get("tags", [])}
-    assert new_ids & seen
+    assert new_ids <= seen

@@ -21,6 +21,7 @@ from semslam.analysis.tag_placement import (
     placement_spread,
     random_placement,
     resample_route,
+    seen_often_enough,
     starts_covered,
     tag_visibility,
 )
@@ -149,3 +150,21 @@ def test_coverage_tags_cover_the_stretch_that_sees_nothing():
         assert starts_covered(fewer, t, 2.0).sum() < after.sum()
     assert coverage_placement(seen, t, visible, 2, 2.0) == chosen[:2]  # greedy: a prefix
     assert coverage_placement(with_tags, t, visible, 50, 2.0) == []  # nothing left to add
+
+
+def test_only_candidates_the_mapping_drive_sees_often_enough_are_kept():
+    """Candidates face cars driving +x: the same drive sees each, the drive back along it
+    sees none, and a drive that stops short sees only the candidates within its camera's
+    range."""
+    poses, _ = _route()
+    cands = candidate_tags(poses, spacing=10.0, offset=3.0)
+    sensors = SensorModel(slot_rule="entrance")
+    assert seen_often_enough(poses, cands, sensors, 3).all()
+    back = poses[::-1].copy()
+    back[:, 2] = math.pi
+    assert not seen_often_enough(back, cands, sensors, 1).any()
+    short = poses[poses[:, 0] <= 30.0]
+    kept = seen_often_enough(short, cands, sensors, 3)  # the camera sees 20-25 m ahead
+    assert kept[cands[:, 0] <= 30.0].all() and not kept[cands[:, 0] >= 60.0].any()
+    counts = tag_visibility(short, cands, sensors).sum(axis=1)
+    assert not seen_often_enough(short, cands, sensors, int(counts.max()) + 1).any()
