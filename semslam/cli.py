@@ -652,6 +652,9 @@ def plan_tags_command(
             f"worst {_m(step['worst_m'])}{spread}; a slot or tag within {within:g} s from "
             f"{step['relocalization_coverage']:.1%} of the route"
         )
+    if result["mapping_route"] is not None:
+        rows["candidates"] = (f"{result['candidates']} the mapping route sees, "
+                              f"{result['candidates_unmapped']} set aside")
     rows["written"] = ", ".join(result["files"])
     print_metrics("semslam plan-tags", rows, False)
 
