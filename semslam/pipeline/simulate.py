@@ -55,9 +55,7 @@ def _init_render_worker(
     from semslam.simulation.world import make_world, with_placed_tags
 
     cv2.setNumThreads(1)
-    world = make_world(preset, seed)
-    if placed_tags is not None and len(placed_tags):
-        world = with_placed_tags(world, placed_tags)
+    world = with_placed_tags(make_world(preset, seed), placed_tags)
     rig = default_rig()
     _WORKER.update(
         topview=TopviewRenderer(world, rig.topview),

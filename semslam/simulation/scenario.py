@@ -70,9 +70,7 @@ def simulate_drive(
     added to the world (:func:`~semslam.simulation.world.with_placed_tags`), e.g. a
     `semslam plan-tags` plan to try out.
     """
-    world = make_world(preset, seed)
-    if placed_tags is not None and len(placed_tags):
-        world = with_placed_tags(world, placed_tags)
+    world = with_placed_tags(make_world(preset, seed), placed_tags)
     rig = default_rig()
     cfg = config.drive
     path = make_path(world, drive_index, cfg.lane_offset, cfg.turn_radius)

@@ -323,14 +323,17 @@ PLACED_TAG_SIZE = 0.5  # m, as the world's own tags
 PLACED_TAG_HEIGHT = 1.6  # m, tag centre above the ground
 
 
-def with_placed_tags(world: World, poses: FloatArray) -> World:
+def with_placed_tags(world: World, poses: FloatArray | None) -> World:
     """The world with tag36h11 tags added at ``poses`` (K, 3: x, y m and the yaw they face,
     map frame; e.g. a `semslam plan-tags` plan), numbered with the lowest IDs the world does
-    not use, free-standing (no pillar), 0.5 m, centre 1.6 m above the ground.
+    not use, free-standing (no pillar), 0.5 m, centre 1.6 m above the ground. No poses (None
+    or K = 0): the world as it is.
 
     Raises:
         SimulationError: more tags than tag36h11 has codes left.
     """
+    if poses is None or not len(poses):
+        return world
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     used = {t.tag_id for t in world.tags if t.family is TagFamily.TAG36H11}
     free = [i for i in range(TAG36H11_CODES) if i not in used]

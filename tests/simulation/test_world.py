@@ -93,3 +93,5 @@ def test_placed_tags_take_the_lowest_free_ids_and_keep_the_world():
     assert all(t.size == 0.5 and t.height == 1.6 for t in new)
     with pytest.raises(SimulationError, match="codes left"):
         with_placed_tags(world, np.zeros((600, 3)))
+    assert with_placed_tags(world, None) is world
+    assert with_placed_tags(world, np.zeros((0, 3))) is world
