@@ -25,6 +25,8 @@ on worlds some of whose separators cross the entrance line (``--cross-share``)::
         --per-world 8 --epochs 10 --lr 5e-4 --max-minutes 25 --cross-share 0.5 \
         --init-onnx models/marking_points.onnx --out /tmp/marking_points.onnx
 
+``--arch separable`` trains the smaller network of :data:`ARCHITECTURES` instead.
+
 torch is needed here only; the package runs the exported model with onnxruntime.
 """
 
@@ -299,21 +301,39 @@ def encode_targets(labels: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarr
 # ----------------------------------------------------------------------------- model
 
 
-def build_model():
+ARCHITECTURES = ("conv", "separable")
+"""``--arch``: ``conv``, eight 3x3 convolutions (0.47 M parameters, 0.215 G multiply-adds at
+256 px: the shipped pair of 2026-11-22/23); ``separable``, the same strides and widths with
+the last five convolutions depthwise-separable (a 3x3 per channel, then a 1x1 across them;
+0.08 M parameters, 0.066 G multiply-adds, 4.2 ms against 11.7 ms on a Zen 1 core; a pair
+trained 50 min per run lost 3 points of held-out recall: not shipped, ``BENCHMARKS.md``, "A
+smaller grid network for the Zen 1 machine")."""
+
+
+def build_model(arch: str = "conv"):
+    """The grid network: (N, 3, S, S) normalised BGR in, (N, 6, S / 16, S / 16) logits out."""
     import torch.nn as nn
 
     def cbr(i: int, o: int, s: int = 1) -> list:
         return [nn.Conv2d(i, o, 3, s, 1, bias=False), nn.BatchNorm2d(o), nn.ReLU(inplace=True)]
 
+    def separable(i: int, o: int, s: int = 1) -> list:
+        across = [nn.Conv2d(i, o, 1, bias=False), nn.BatchNorm2d(o), nn.ReLU(inplace=True)]
+        return [nn.Conv2d(i, i, 3, s, 1, groups=i, bias=False), nn.BatchNorm2d(i),
+                nn.ReLU(inplace=True), *across]
+
+    if arch not in ARCHITECTURES:
+        raise ValueError(f"unknown architecture {arch!r}, expected one of {ARCHITECTURES}")
+    late = cbr if arch == "conv" else separable
     layers = (
         cbr(3, 16, 2)
         + cbr(16, 32, 2)
         + cbr(32, 64, 2)
-        + cbr(64, 64)
-        + cbr(64, 64)
-        + cbr(64, 128, 2)
-        + cbr(128, 128)
-        + cbr(128, 128)
+        + late(64, 64)
+        + late(64, 64)
+        + late(64, 128, 2)
+        + late(128, 128)
+        + late(128, 128)
     )
     return nn.Sequential(*layers, nn.Conv2d(128, 6, 1))
 
@@ -456,7 +476,7 @@ def train(args: argparse.Namespace) -> None:
     labels = _labels_at_input(data)
     n = len(images)
     print(f"{n} training views, {int(data['counts'].sum())} points", flush=True)
-    net = build_model()
+    net = build_model(args.arch)
     if args.init is not None:  # continue from saved weights (a second, shorter run)
         net.load_state_dict(torch.load(args.init))
     if args.init_onnx is not None:  # fine-tune a shipped file: its batch norms stay frozen
@@ -470,7 +490,7 @@ def train(args: argparse.Namespace) -> None:
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     steps_per_epoch = n // args.batch
     total = steps_per_epoch * args.epochs
-    ckpt = args.cache / "marking_points_last.pt"  # not beside the model: package data
+    ckpt = args.cache / f"{args.out.stem}_last.pt"  # not beside the model: package data
     budget = args.max_minutes * 60.0 if args.max_minutes else float("inf")
     jobs = [
         (order[b * args.batch : (b + 1) * args.batch], args.seed * 1_000_003 + e * 10_007 + b)
@@ -677,6 +697,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--faint-share", type=float, default=0.0,
                    help="share of training worlds whose paint is worn faint")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
+    p.add_argument("--arch", choices=ARCHITECTURES, default="conv",
+                   help="grid network (ARCHITECTURES)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
     p.add_argument("--fp32", action="store_true",
                    help="float32 convolutions (default: bf16 autocast and channels last "
