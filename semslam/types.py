@@ -56,9 +56,20 @@ class SlotObservation:
         label: painted slot ID as read ("B17"), or None when unreadable.
         label_confidence: probability in [0, 1] that ``label`` is right (0 without a label).
         confidence: probability in [0, 1] that the slot is real.
-        corner_sigma: 1-sigma isotropic noise of each corner, metres.
+        corner_sigma: 1-sigma isotropic noise of each corner, metres, for a consumer that
+            takes each frame's detections as independent (what the mapper and the filter
+            weight it with).
         label_reads: frames that read ``label`` (1 for a single frame; more for the
             slot of several recent frames merged into one, :mod:`semslam.localization.recent`).
+        corner_sigma_own: per corner (in the order of ``vCorners``), the 1-sigma per axis
+            (m) of the part of its error that is this detection's own, independent of other
+            frames' (None: all of ``corner_sigma``).
+        corner_sigma_shared: per corner, the 1-sigma per axis (m) of the part that every
+            detection of this slot shares, in the map frame: a detector's bias for that
+            slot's paint, which more frames do not average away (None: none). A detector
+            with such an error declares a ``corner_sigma`` larger than its own part, so
+            that frames taken as independent do not make a map too sure; the mapper then
+            exports corner covariances from these two (:mod:`semslam.mapping.shared_error`).
     """
 
     vCorners: FloatArray
@@ -68,6 +79,8 @@ class SlotObservation:
     confidence: float
     corner_sigma: float
     label_reads: int = 1
+    corner_sigma_own: tuple[float, float, float, float] | None = None
+    corner_sigma_shared: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)

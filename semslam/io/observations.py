@@ -4,7 +4,8 @@ Everything is in the vehicle frame (x forward, y left), metres and radians::
 
     {"t": 12.3,
      "slots": [{"corners": [[x, y] x4], "kind", "label", "label_confidence",
-                "confidence", "corner_sigma"}],
+                "confidence", "corner_sigma",
+                "corner_sigma_own" [4], "corner_sigma_shared" [4] (both optional)}],
      "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
      "markings": [{"a": [x, y], "b": [x, y], "width", "confidence", "sigma" (optional)}]}
 
@@ -141,7 +142,7 @@ def _list(root: Field, key: str) -> list[Field]:
 
 
 def _slot_to_dict(slot: SlotObservation) -> dict[str, Any]:
-    return {
+    out = {
         "corners": np.asarray(slot.vCorners, dtype=float).tolist(),
         "kind": SlotKind(slot.kind).value,
         "label": slot.label,
@@ -149,6 +150,11 @@ def _slot_to_dict(slot: SlotObservation) -> dict[str, Any]:
         "confidence": float(slot.confidence),
         "corner_sigma": float(slot.corner_sigma),
     }
+    for key in ("corner_sigma_own", "corner_sigma_shared"):
+        sigmas = getattr(slot, key)
+        if sigmas is not None:
+            out[key] = [float(v) for v in sigmas]
+    return out
 
 
 MIN_SLOT_SIDE = 0.05
@@ -156,7 +162,7 @@ MIN_SLOT_SIDE = 0.05
 
 
 def _slot_from_field(f: Field) -> SlotObservation:
-    label = f.get("label")
+    label, own, shared = f.get("label"), f.get("corner_sigma_own"), f.get("corner_sigma_shared")
     corners = f["corners"].array((4, 2), within=MAX_RANGE)
     sides = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
     if sides.min() < MIN_SLOT_SIDE:
@@ -169,7 +175,19 @@ def _slot_from_field(f: Field) -> SlotObservation:
         label_confidence=f["label_confidence"].number(0.0, 1.0),
         confidence=f["confidence"].number(0.0, 1.0),
         corner_sigma=f["corner_sigma"].number(0.0, MAX_RANGE),
+        corner_sigma_own=_corner_sigmas(own),
+        corner_sigma_shared=_corner_sigmas(shared),
     )
+
+
+def _corner_sigmas(f: Field | None) -> tuple[float, float, float, float] | None:
+    """An optional list of four per-corner sigmas (m)."""
+    if f is None:
+        return None
+    sigmas = f.array((4,), within=MAX_RANGE)
+    if np.any(sigmas < 0):
+        f.fail("a sigma below 0")
+    return tuple(float(v) for v in sigmas)
 
 
 def _tag_to_dict(tag: TagObservation) -> dict[str, Any]:

@@ -53,8 +53,9 @@ def fuse_detection(
 
     A detection joins when it has the primary's kind and each of its corners lies within
     ``radius`` metres of the primary's corner of the same index; the closest join first,
-    at most ``max_count - 1`` of them. Returns the fused detection (corner sigma divided
-    by sqrt of the count) and the count (1: nothing joined).
+    at most ``max_count - 1`` of them. Returns the fused detection (corner sigma and its own
+    part divided by sqrt of the count; the shared part stays) and the count (1: nothing
+    joined).
     """
     if max_count <= 1 or not others:
         return primary, 1
@@ -72,6 +73,10 @@ def fuse_detection(
     chosen = [obs for _, obs in near[: max_count - 1]]
     count = 1 + len(chosen)
     corners = (reference + sum(np.asarray(o.vCorners, dtype=float) for o in chosen)) / count
+    own = primary.corner_sigma_own
     return replace(
-        primary, vCorners=corners, corner_sigma=primary.corner_sigma / math.sqrt(count)
+        primary,
+        vCorners=corners,
+        corner_sigma=primary.corner_sigma / math.sqrt(count),
+        corner_sigma_own=None if own is None else tuple(v / math.sqrt(count) for v in own),
     ), count

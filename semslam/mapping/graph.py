@@ -25,9 +25,11 @@ the container factors never need their first-order shift.
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Iterable
 
 import gtsam
 import numpy as np
+import scipy.sparse as sp
 
 from semslam.errors import MappingError
 from semslam.geometry import FloatArray
@@ -77,12 +79,14 @@ class Graph:
         vector = np.asarray(vector, dtype=float)
         self._insert(key, vector, len(vector))
 
-    def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+    def add_factor(self, factor: gtsam.NonlinearFactor) -> int:
+        """Add a factor; its index in :attr:`factors`."""
         index = self.factors.size()
         self.factors.add(factor)
         for key in factor.keys():  # noqa: SIM118 (a gtsam factor, not a dict)
             self._factors_of[key].append(index)
         self._batch = None
+        return index
 
     def has(self, key: int) -> bool:
         return key in self._keys
@@ -200,10 +204,7 @@ class Graph:
         Cholesky still refuses as a whole (`large` world 3: odometry information up to 1e9
         beside those priors) is eliminated by QR instead, into a Bayes tree that answers
         the same two questions (1 s for world 3's 35,000 unknowns)."""
-        linear = self.factors.linearize(self.estimate)
-        for key, dim in self._dims.items():
-            vague = np.eye(dim) * 0.1
-            linear.add(gtsam.JacobianFactor(key, vague, np.zeros(dim), self._unit[dim]))
+        linear = self._linearized_with_vague_priors(self.factors)
         try:
             return gtsam.Marginals(linear, self.estimate)
         except RuntimeError:
@@ -213,6 +214,33 @@ class Graph:
             return linear.eliminateMultifrontal(colamd, gtsam.EliminateQR)
         except RuntimeError:
             return None
+
+    def _linearized_with_vague_priors(self, factors: gtsam.NonlinearFactorGraph):
+        linear = factors.linearize(self.estimate)
+        for key, dim in self._dims.items():
+            vague = np.eye(dim) * 0.1
+            linear.add(gtsam.JacobianFactor(key, vague, np.zeros(dim), self._unit[dim]))
+        return linear
+
+    def jacobian(self, without: Iterable[int] = ()) -> tuple[sp.csr_matrix, dict[int, int]]:
+        """The whitened Jacobian (rows x unknowns) of every factor but those of index
+        ``without`` at the current estimate, with the vague priors of :meth:`marginals`; and
+        the first column of each variable (gtsam's order: ascending keys)."""
+        left_out = set(without)
+        factors = gtsam.NonlinearFactorGraph()
+        for i in range(self.factors.size()):
+            if i not in left_out:
+                factors.add(self.factors.at(i))
+        triplets = self._linearized_with_vague_priors(factors).sparseJacobian_()
+        columns, n = {}, 0
+        for key in sorted(self._dims):
+            columns[key] = n
+            n += self._dims[key]
+        rows, cols, vals = triplets[0].astype(int) - 1, triplets[1].astype(int) - 1, triplets[2]
+        inside = cols < n  # column n holds the right-hand side
+        A = sp.csr_matrix((vals[inside], (rows[inside], cols[inside])),
+                          shape=(int(rows.max()) + 1, n))
+        return A, columns
 
 
 def _first_line(error: Exception) -> str:

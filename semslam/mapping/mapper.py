@@ -77,6 +77,11 @@ from semslam.mapping.maxmix import (
     null_hypothesis_noise,
 )
 from semslam.mapping.odometry import calibration_jacobian, odometry_between
+from semslam.mapping.shared_error import (
+    SlotSightingFactor,
+    has_shared_error,
+    sandwich_covariances,
+)
 from semslam.types import (
     FrameObservations,
     Marking,
@@ -218,6 +223,9 @@ class Mapper:
         self._landmarks_of_label: dict[str, set[int]] = {}  # landmarks that got a vote
         self.marking_detections: list[tuple[int, FloatArray, float, float]] = []
         # (keyframe, end points (2, 2) vehicle frame, width, confidence): every one used
+        self._slot_factors: list[tuple[int, Sighting, int | None]] = []
+        # (graph factor index, its sighting, the landmark of a loop-closure factor; None:
+        # the sighting's own factor, on the landmark it ends on): for shared_error
 
     # ------------------------------------------------------------------ frames
     def add_frame(self, frame: FrameObservations) -> bool:
@@ -488,13 +496,14 @@ class Mapper:
             sighting = self.sightings[vote.sighting]
             pose_key = X(sighting.keyframe)
             keys = [C(4 * vote.landmark + c) for c in range(4)]
-            self.graph.add_factor(
+            index = self.graph.add_factor(
                 custom_factor(
                     [pose_key, *keys],
                     slot_observation_residual(pose_key, keys, sighting.observation.vCorners),
                     gtsam.noiseModel.Isotropic.Sigma(8, self._observation_sigma(sighting)),
                 )
             )
+            self._slot_factors.append((index, sighting, vote.landmark))
         started = time.perf_counter()
         self.graph.update()
         self._refresh_estimates(everything=True)
@@ -557,7 +566,7 @@ class Mapper:
                 slot_observation_residual(pose_key, keys, obs.vCorners),
                 gtsam.noiseModel.Isotropic.Sigma(8, sigma),
             )
-            self.graph.add_factor(sighting.factor)
+            self._slot_factors.append((self.graph.add_factor(sighting.factor), sighting, None))
             return
         if len(candidates) == 1:
             keys = corner_keys[sighting.candidates[0]]
@@ -566,7 +575,7 @@ class Mapper:
                 slot_observation_residual(pose_key, keys, obs.vCorners),
                 null_hypothesis_noise(np.eye(8) * sigma * sigma, self.null),
             )
-            self.graph.add_factor(sighting.factor)
+            self._slot_factors.append((self.graph.add_factor(sighting.factor), sighting, None))
             return
         weights = scores / scores.sum() * (1.0 - self.null.weight)
         sqrt_info = np.eye(8) / sigma
@@ -589,7 +598,7 @@ class Mapper:
         keys = [pose_key] + [key for i in sighting.candidates for key in corner_keys[i]]
         mixture = MaxMixture(keys, [3] + [2] * (len(keys) - 1), components)
         sighting.factor = mixture
-        self.graph.add_factor(mixture.factor())
+        self._slot_factors.append((self.graph.add_factor(mixture.factor()), sighting, None))
 
     # ------------------------------------------------------------------ estimates
     @property
@@ -659,6 +668,7 @@ class Mapper:
         started = time.perf_counter()
         iterations = 0
         marginals = None
+        slot_covariances: dict[int, FloatArray] = {}
         if self.use_graph:
             self.graph.update()
             iterations = self.graph.optimize_batch(
@@ -667,10 +677,11 @@ class Mapper:
             self._refresh_estimates(everything=True)
             marginals = self.graph.marginals()
             self._decide_components()
+            slot_covariances = self._slot_covariances()
         else:
             for index, sums in self._slot_observation_sums.items():
                 self.slots.set_corners(index, np.mean(sums, axis=0))
-        semantic_map, slot_of_landmark = self._export(marginals)
+        semantic_map, slot_of_landmark = self._export(marginals, slot_covariances)
         stats = {
             "keyframes": len(self.keyframe_times),
             "slot_observations": len(self.sightings),
@@ -706,6 +717,24 @@ class Mapper:
             tuple(self.tag_edges),
             slot_of_landmark,
         )
+
+    def _slot_covariances(self) -> dict[int, FloatArray]:
+        """Where the slot detections declare an error shared by every sighting of a slot:
+        the joint covariance (8, 8) of each mapped slot's corners, the sandwich of
+        :mod:`.shared_error`; else none (the graph's marginals serve)."""
+        if not any(has_shared_error(s.observation) for _, s, _ in self._slot_factors):
+            return {}
+        factors = []
+        for index, sighting, landmark in self._slot_factors:
+            if landmark is None and sighting.status in (SightingStatus.ACCEPTED,
+                                                        SightingStatus.REASSIGNED):
+                landmark = sighting.landmark
+            factors.append(SlotSightingFactor(index, sighting.keyframe, landmark,
+                                              sighting.observation, sighting.sigma))
+        other, columns = self.graph.jacobian([f.index for f in factors])
+        landmarks = [s.index for s in self.slots.active()]
+        return sandwich_covariances(factors, other, columns, self.graph.estimate, X, C,
+                                    self.slots.resolve, landmarks)
 
     def _calibration_of(self, k: int) -> FloatArray:
         """The (speed scale, gyro bias) the odometry factor into keyframe ``k`` was solved
@@ -749,7 +778,9 @@ class Mapper:
             if len(near) == 1:
                 self._label_votes.append((near[0][0], obs.label, obs.label_confidence))
 
-    def _export(self, marginals) -> tuple[SemanticMap, dict[int, int]]:
+    def _export(
+        self, marginals, slot_covariances: dict[int, FloatArray]
+    ) -> tuple[SemanticMap, dict[int, int]]:
         readings: dict[int, list[tuple[str, float]]] = defaultdict(list)
         for index, label, confidence in self._label_votes:
             readings[self.slots.resolve(index)].append((label, confidence))
@@ -777,7 +808,9 @@ class Mapper:
             heading_variance = None
             if self.use_graph:
                 keys = [C(4 * landmark.index + c) for c in range(4)]
-                joint = _marginal(marginals, keys)
+                joint = slot_covariances.get(landmark.index)
+                if joint is None:
+                    joint = _marginal(marginals, keys)
                 if joint is None:  # the corner noise over the accepted observations, counted
                     floor = self.cfg.slot_corner_sigma_min
                     covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1)

@@ -223,8 +223,11 @@ def slot_observation(
     label: str | None = None,
     label_confidence: float = 0.0,
     corner_sigma: float = 0.1,
+    corner_sigma_own: tuple[float, float, float, float] | None = None,
+    corner_sigma_shared: tuple[float, float, float, float] | None = None,
 ) -> SlotObservation:
-    """``slot`` as a :class:`SlotObservation` with its corners in the vehicle frame."""
+    """``slot`` as a :class:`SlotObservation` with its corners in the vehicle frame (the
+    sigmas as :class:`SlotObservation` defines them)."""
     spec = spec or TopviewSpec()
     vCorners = spec.pixel_to_vehicle(slot.uv_corners)
     return SlotObservation(
@@ -234,6 +237,8 @@ def slot_observation(
         label_confidence=float(label_confidence) if label is not None else 0.0,
         confidence=float(slot.confidence),
         corner_sigma=float(corner_sigma),
+        corner_sigma_own=corner_sigma_own,
+        corner_sigma_shared=corner_sigma_shared,
     )
 
 

@@ -36,6 +36,19 @@ garage seeds 1 and 2): map corner RMSE with lines at 0.15 m, corners at 0.10 / 0
 0.083 -> 0.048 m, localizer ATE 0.073 -> 0.058 m and 0.090 -> 0.059 m, its NEES 2.2 -> 1.3
 and 5.4 -> 1.9 (conservative now). BENCHMARKS.md, `bench_slot_corner_errors.py`."""
 
+CORNER_SIGMA_OWN = (0.017, 0.017, 0.033, 0.033)
+"""m per axis, per corner (entrance-left, entrance-right, rear-right, rear-left): the part of
+a detected corner's error that is each frame's own. With :data:`CORNER_SIGMA_SHARED`, the
+error model the mapper exports its corner covariances from (``SlotObservation``); the
+weight stays :data:`DEFAULT_CORNER_SIGMA`. Measured by ``bench_slot_corner_errors.py`` on
+the demo's mapping drive (garage seed 1, drive 0; 8,723 detections of 184 slots): entrance
+0.0167, rear 0.0327 m. The rear is placed from the entrance by the slot's depth, so it is
+off by more."""
+
+CORNER_SIGMA_SHARED = (0.008, 0.008, 0.019, 0.019)
+"""m per axis, per corner: the part of a detected corner's error that every frame seeing
+the slot shares (the same measurement: entrance 0.0078, rear 0.0186 m)."""
+
 DEFAULT_LINE_SIGMA = 0.15
 """m: 1-sigma declared for a detected painted line's end points across the line. The same
 reason as the corners: a line is detected a little off in the same way in every frame that
@@ -81,7 +94,11 @@ class TopviewPerception:
         spec: the top-view grid (ps2.0 by default).
         slot_detector, id_reader, marking_detector: injected detectors (default: the
             shipped models and the tuned line detector); ``lines=False`` skips lines.
-        corner_sigma: 1-sigma of each reported slot corner, metres.
+        corner_sigma: 1-sigma of each reported slot corner, metres: the weight a map or
+            filter that takes frames as independent gives it.
+        corner_error: per corner, the sigmas (m) of each frame's own error and of the error
+            every frame of a slot shares (``SlotObservation.corner_sigma_own`` /
+            ``_shared``); None: not declared.
         line_sigma: 1-sigma of each reported line end point across the line, metres.
     """
 
@@ -94,12 +111,14 @@ class TopviewPerception:
         lines: bool = True,
         corner_sigma: float = DEFAULT_CORNER_SIGMA,
         line_sigma: float = DEFAULT_LINE_SIGMA,
+        corner_error: tuple[tuple, tuple] | None = (CORNER_SIGMA_OWN, CORNER_SIGMA_SHARED),
     ) -> None:
         self.spec = spec or TopviewSpec()
         self.slot_detector = slot_detector or SlotDetector(spec=self.spec)
         self.id_reader = id_reader or SlotIdReader()
         self.marking_detector = (marking_detector or MarkingDetector()) if lines else None
         self.corner_sigma = corner_sigma
+        self.corner_error = corner_error
         self.line_sigma = line_sigma
 
     def detect(self, topview: np.ndarray) -> TopviewDetections:
@@ -133,6 +152,7 @@ class TopviewPerception:
 
     def slot_observations(self, detections: TopviewDetections) -> tuple[SlotObservation, ...]:
         """The detected slots as vehicle-frame observations with their read IDs."""
+        own, shared = self.corner_error or (None, None)
         return tuple(
             slot_observation(
                 slot,
@@ -140,12 +160,16 @@ class TopviewPerception:
                 reading.label,
                 reading.confidence,
                 self.corner_sigma,
+                own,
+                shared,
             )
             for slot, reading in zip(detections.slots, detections.ids, strict=True)
         )
 
 
 __all__ = [
+    "CORNER_SIGMA_OWN",
+    "CORNER_SIGMA_SHARED",
     "DEFAULT_CORNER_SIGMA",
     "DEFAULT_LINE_SIGMA",
     "TopviewDetections",

@@ -49,6 +49,8 @@ slots = st.builds(
     label_confidence=unit,
     confidence=unit,
     corner_sigma=st.floats(0.0, 10.0),
+    corner_sigma_own=st.none() | st.tuples(*[st.floats(0.0, 10.0)] * 4),
+    corner_sigma_shared=st.none() | st.tuples(*[st.floats(0.0, 10.0)] * 4),
 )
 tags = st.builds(
     TagObservation,
@@ -195,6 +197,14 @@ def _write(path: Path, documents: list[dict]) -> None:
         (
             lambda d: d["slots"][0].update(corner_sigma=1e200),
             r"line 3: slots/0/corner_sigma: must be <= 1000\.0",
+        ),
+        (
+            lambda d: d["slots"][0].update(corner_sigma_own=[0.01, 0.01, 0.02]),
+            r"line 3: slots/0/corner_sigma_own: expected 4 numbers, got 3",
+        ),
+        (
+            lambda d: d["slots"][0].update(corner_sigma_shared=[0.01, 0.01, -0.02, 0.02]),
+            r"line 3: slots/0/corner_sigma_shared: a sigma below 0",
         ),
         (lambda d: d["tags"][0].update(y=-2e3), r"line 3: tags/0/y: must be >= -1000\.0"),
         (

@@ -1,6 +1,7 @@
 """Slot detections between keyframes fused into the keyframe's detection."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -34,6 +35,20 @@ def test_detections_of_the_same_slot_average_and_sharpen():
     assert count == 3
     assert fused.corner_sigma == pytest.approx(0.05 / math.sqrt(3))
     assert fused.label == primary.label and fused.kind == primary.kind
+
+
+def test_a_shared_error_is_not_sharpened_by_fusion():
+    """Of a declared error model, the own part averages over the fused frames, the part
+    every frame of the slot shares does not."""
+    rng = np.random.default_rng(1)
+    model = {"corner_sigma_own": (0.02, 0.02, 0.04, 0.04),
+             "corner_sigma_shared": (0.01, 0.01, 0.02, 0.02)}
+    others = [replace(_obs(SLOT + rng.normal(0, 0.02, (4, 2))), **model) for _ in range(3)]
+    primary = replace(_obs(SLOT), **model)
+    fused, count = fuse_detection(primary, others, radius=0.3, max_count=4)
+    assert count == 4
+    np.testing.assert_allclose(fused.corner_sigma_own, np.array([0.02, 0.02, 0.04, 0.04]) / 2)
+    assert fused.corner_sigma_shared == model["corner_sigma_shared"]
 
 
 def test_the_closest_detections_are_the_ones_averaged():
