@@ -11,9 +11,11 @@ It also splits each corner's error, turned into the map frame with the true pose
 part every detection of that slot shares (the mean over its detections: a bias the CNN has
 for that slot's paint, or the depth prior's error at its rear, which more frames do not
 average away) and the part of each frame's own (the rest): the two sigmas a map needs to
-know how well it knows a corner (``SlotObservation.corner_sigma_frame`` / ``_shared``).
+know how well it knows a corner (``SlotObservation.corner_sigma_own`` / ``_shared``).
 
-    PYTHONPATH=. python benchmarks/bench_slot_corner_errors.py DRIVE_WITH_IMAGES [--save-observations]
+    PYTHONPATH=. python benchmarks/bench_slot_corner_errors.py DRIVE [--save-observations]
+
+(``DRIVE``: a simulated drive with images.)
 
 ``--save-observations`` also stores the perceived frames as the drive's ``cached``
 observations, so ``semslam map DRIVE --observations cached`` maps them without perceiving

@@ -677,7 +677,9 @@ class Mapper:
             self._refresh_estimates(everything=True)
             marginals = self.graph.marginals()
             self._decide_components()
+            covariances_started = time.perf_counter()
             slot_covariances = self._slot_covariances()
+            self._timing["slot_covariance_s"] = time.perf_counter() - covariances_started
         else:
             for index, sums in self._slot_observation_sums.items():
                 self.slots.set_corners(index, np.mean(sums, axis=0))
@@ -703,6 +705,7 @@ class Mapper:
             "association_s": round(self._timing["association_s"], 3),
             "isam2_s": round(self._timing["update_s"], 3),
             "batch_s": round(time.perf_counter() - started, 3),
+            "slot_covariance_s": round(self._timing.get("slot_covariance_s", 0.0), 3),
         }
         return MappingResult(
             semantic_map,
@@ -721,7 +724,8 @@ class Mapper:
     def _slot_covariances(self) -> dict[int, FloatArray]:
         """Where the slot detections declare an error shared by every sighting of a slot:
         the joint covariance (8, 8) of each mapped slot's corners, the sandwich of
-        :mod:`.shared_error`; else none (the graph's marginals serve)."""
+        :mod:`.shared_error`; else (or for a graph too large for it) none: the graph's
+        marginals serve."""
         if not any(has_shared_error(s.observation) for _, s, _ in self._slot_factors):
             return {}
         factors = []
@@ -733,8 +737,9 @@ class Mapper:
                                               sighting.observation, sighting.sigma))
         other, columns = self.graph.jacobian([f.index for f in factors])
         landmarks = [s.index for s in self.slots.active()]
-        return sandwich_covariances(factors, other, columns, self.graph.estimate, X, C,
-                                    self.slots.resolve, landmarks)
+        covariances = sandwich_covariances(factors, other, columns, self.graph.estimate, X, C,
+                                           self.slots.resolve, landmarks)
+        return covariances or {}
 
     def _calibration_of(self, k: int) -> FloatArray:
         """The (speed scale, gyro bias) the odometry factor into keyframe ``k`` was solved

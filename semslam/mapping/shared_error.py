@@ -28,10 +28,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spl
+from scipy.linalg import cho_factor, cho_solve
 
 from semslam.mapping.factors import slot_observation_residual
 from semslam.types import SlotObservation
+
+MAX_UNKNOWNS = 12_000
+"""The largest graph (tangent dimensions) whose slot covariances are computed here: the
+solve is dense, ``n^3 / 3`` operations and ``8 n^2`` bytes (`garage`: 4,500 unknowns, 2-3 s;
+12,000: 1.2 GB). A larger map keeps the graph's marginals."""
 
 
 @dataclass(frozen=True)
@@ -84,8 +89,9 @@ def sandwich_covariances(
     resolve: Callable[[int], int],
     landmarks: Sequence[int],
     chunk: int = 256,
-) -> dict[int, np.ndarray]:
-    """The joint (8, 8) covariance of each landmark's four corners (x0, y0, ..., y3).
+) -> dict[int, np.ndarray] | None:
+    """The joint (8, 8) covariance of each landmark's four corners (x0, y0, ..., y3); None
+    for a graph of more than :data:`MAX_UNKNOWNS` unknowns.
 
     Args:
         sightings: every slot-observation factor (those with no landmark weigh nothing).
@@ -100,6 +106,8 @@ def sandwich_covariances(
         chunk: landmarks solved for at once (memory: unknowns x 8 x chunk floats).
     """
     n = other.shape[1]
+    if n > MAX_UNKNOWNS:
+        return None
     rows, cols, vals = [], [], []
     inv_w2, own2, group = [], [], []  # per row: 1 / w^2, own^2, (slot, corner, axis) group
     groups: dict[tuple[int, int, int], int] = {}
@@ -142,7 +150,7 @@ def sandwich_covariances(
     G = sp.csr_matrix((np.ones(row), (np.array(group, int), np.arange(row))),
                       shape=(len(groups), row)) @ WA
     M = (base + WA.T @ sp.diags(own2_) @ WA + G.T @ sp.diags(np.array(shared2)) @ G).tocsc()
-    solve = spl.splu(H).solve
+    factor = cho_factor(H.toarray())  # dense: scipy's sparse LU solves many columns slowly
     out: dict[int, np.ndarray] = {}
     for start in range(0, len(landmarks), chunk):
         part = landmarks[start : start + chunk]
@@ -150,7 +158,7 @@ def sandwich_covariances(
                            for i in part for k in range(4) for axis in range(2)])
         E = np.zeros((n, len(picked)))
         E[picked, np.arange(len(picked))] = 1.0
-        X = solve(E)
+        X = cho_solve(factor, E)
         MX = M @ X
         for j, i in enumerate(part):
             s = slice(8 * j, 8 * j + 8)
