@@ -351,3 +351,35 @@ def test_a_slot_read_once_unsurely_exports_that_doubt(small):
     assert slots[label].label_confidence == pytest.approx(0.02)
     others = [s for s in slots.values() if s.label not in (None, label)]
     assert others and all(s.label_confidence > 0.99 for s in others)
+
+
+def _declaring(frames, weight, own, shared):
+    """The frames' slot detections weighted at ``weight`` and declaring own and shared errors
+    (per corner, m)."""
+    return [dataclasses.replace(f, slots=tuple(
+        dataclasses.replace(s, corner_sigma=weight, corner_sigma_own=own,
+                            corner_sigma_shared=shared) for s in f.slots)) for f in frames]
+
+
+def test_declared_own_and_shared_errors_set_the_corner_covariances_not_the_map(
+    small, monkeypatch
+):
+    """Detections weighted at 0.3 m that declare a small own error and a shared one: the same
+    corners, covariances about the declared errors (not the weight's), never below the
+    shared error; a graph too large for the dense solve keeps the graph's marginals."""
+    import semslam.mapping.shared_error as shared_error
+
+    plain = _map(small, _declaring(small.noisy, 0.3, None, None))
+    declared = _map(small, _declaring(small.noisy, 0.3, (0.05,) * 4, (0.01, 0.01, 0.02, 0.02)))
+    assert declared.statistics["slot_covariance_s"] > 0
+    assert len(declared.map.slots) == len(plain.map.slots)
+    for a, b in zip(declared.map.slots, plain.map.slots, strict=True):
+        np.testing.assert_array_equal(a.corners, b.corners)
+        variances = np.array([np.diag(c) for c in a.corner_covariances])  # (4, 2)
+        before = np.array([np.diag(c) for c in b.corner_covariances])
+        assert np.all(variances < before)
+        assert np.all(variances[:2] >= 0.01**2) and np.all(variances[2:] >= 0.02**2)
+    monkeypatch.setattr(shared_error, "MAX_UNKNOWNS", 10)
+    too_large = _map(small, _declaring(small.noisy, 0.3, (0.05,) * 4, (0.01,) * 4))
+    for a, b in zip(too_large.map.slots, plain.map.slots, strict=True):
+        np.testing.assert_allclose(a.corner_covariances, b.corner_covariances)
