@@ -66,11 +66,11 @@ def has_shared_error(observation: SlotObservation) -> bool:
 
 
 def own_sigma(factor: SlotSightingFactor) -> np.ndarray:
-    """Per corner (4,), the sigma of a sighting's own error, scaled as its weight was (floor,
-    confidence)."""
-    obs = factor.observation
-    own = np.full(4, obs.corner_sigma) if obs.corner_sigma_own is None else obs.corner_sigma_own
-    return factor.sigma * np.asarray(own, float) / max(obs.corner_sigma, 1e-12)
+    """Per corner (4,), the sigma of a sighting's own error, m: as the detection declares it
+    (measured over detections of every confidence, so not scaled by this one's, as its
+    weight is), or, undeclared, its weight."""
+    own = factor.observation.corner_sigma_own
+    return np.full(4, factor.sigma) if own is None else np.asarray(own, float)
 
 
 def shared_sigma(factor: SlotSightingFactor) -> np.ndarray:

@@ -145,14 +145,19 @@ def test_sightings_on_the_null_hypothesis_weigh_nothing():
                                rtol=1e-6)
 
 
-def test_own_sigma_keeps_the_weight_scaling():
-    """A sighting weighted at 0.3 / sqrt(0.5) (its confidence) with own part 0.05 of
-    corner_sigma 0.3: own sigma 0.05 / sqrt(0.5)."""
+def test_own_sigma_is_the_declared_one_else_the_weight():
+    """A sighting weighted at 0.3 / sqrt(0.5) (its confidence) declaring an own error of
+    0.05 m: 0.05 m (a measured error, over detections of every confidence); declaring only a
+    shared error: its weight."""
     obs = SlotObservation(CORNERS, SlotKind.PERPENDICULAR, None, 0.0, 0.5, 0.30,
                           corner_sigma_own=(0.05,) * 4, corner_sigma_shared=(0.02,) * 4)
-    f = SlotSightingFactor(0, 0, 0, obs, 0.30 / np.sqrt(0.5))
-    np.testing.assert_allclose(own_sigma(f), 0.05 / np.sqrt(0.5))
-    assert has_shared_error(obs)
+    weight = 0.30 / np.sqrt(0.5)
+    np.testing.assert_allclose(own_sigma(SlotSightingFactor(0, 0, 0, obs, weight)), 0.05)
+    shared_only = SlotObservation(CORNERS, SlotKind.PERPENDICULAR, None, 0.0, 0.5, 0.30,
+                                  corner_sigma_shared=(0.02,) * 4)
+    np.testing.assert_allclose(own_sigma(SlotSightingFactor(0, 0, 0, shared_only, weight)),
+                               weight)
+    assert has_shared_error(obs) and has_shared_error(shared_only)
     assert not has_shared_error(SlotObservation(CORNERS, SlotKind.PERPENDICULAR, None, 0.0,
                                                 1.0, 0.3))
 
