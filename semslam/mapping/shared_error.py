@@ -35,8 +35,8 @@ from semslam.types import SlotObservation
 
 MAX_UNKNOWNS = 12_000
 """The largest graph (tangent dimensions) whose slot covariances are computed here: the
-solve is dense, ``n^3 / 3`` operations and ``8 n^2`` bytes (`garage`: 4,500 unknowns, 2-3 s;
-12,000: 1.2 GB). A larger map keeps the graph's marginals."""
+solve is dense, ``n^3 / 3`` operations and ``8 n^2`` bytes (`garage`: 4,500 unknowns, about 4 s on
+the 2-core machine; 12,000: 1.2 GB). A larger map keeps the graph's marginals."""
 
 
 @dataclass(frozen=True)
@@ -109,8 +109,9 @@ def sandwich_covariances(
     if n > MAX_UNKNOWNS:
         return None
     rows, cols, vals = [], [], []
-    inv_w2, own2, group = [], [], []  # per row: 1 / w^2, own^2, (slot, corner, axis) group
-    groups: dict[tuple[int, int, int], int] = {}
+    inv_w2, own2 = [], []  # per row: 1 / w^2, own^2
+    turns, group = [], []  # per corner seen: vehicle -> map rotation (2, 2), (slot, corner)
+    groups: dict[tuple[int, int], int] = {}
     shared2: list[float] = []
     row = 0
     for f in sightings:
@@ -128,14 +129,14 @@ def sandwich_covariances(
             vals.append(block[nz])
         own, shared, slot = own_sigma(f), shared_sigma(f), resolve(f.landmark)
         for k in range(4):
-            for axis in range(2):
-                inv_w2.append(1.0 / f.sigma**2)
-                own2.append(own[k] ** 2)
-                g = groups.setdefault((slot, k, axis), len(groups))
-                if g == len(shared2):
-                    shared2.append(0.0)
-                shared2[g] = max(shared2[g], shared[k] ** 2)
-                group.append(g)
+            inv_w2 += [1.0 / f.sigma**2] * 2
+            own2 += [own[k] ** 2] * 2
+            turns.append(H[corners[k]][2 * k : 2 * k + 2].T)  # the corner's rows: R^T
+            g = groups.setdefault((slot, k), len(groups))
+            if g == len(shared2):
+                shared2.append(0.0)
+            shared2[g] = max(shared2[g], shared[k] ** 2)
+            group.append(g)
         row += 8
     A = sp.csr_matrix(
         (np.concatenate(vals) if vals else [], (np.concatenate(rows) if rows else [],
@@ -146,10 +147,14 @@ def sandwich_covariances(
     base = (other.T @ other).tocsc()
     WA = sp.diags(inv_w2_) @ A
     H = (base + A.T @ WA).tocsc()
-    # rows of one (slot, corner, axis) summed: the shared error is the same in each of them
-    G = sp.csr_matrix((np.ones(row), (np.array(group, int), np.arange(row))),
-                      shape=(len(groups), row)) @ WA
-    M = (base + WA.T @ sp.diags(own2_) @ WA + G.T @ sp.diags(np.array(shared2)) @ G).tocsc()
+    # the shared error is the same map-frame vector in every sighting of a slot's corner:
+    # each corner's two rows turned into the map frame, then summed over the slot's sightings
+    to_map = sp.block_diag(turns, format="csr") if turns else sp.csr_matrix((0, 0))
+    rows_of = np.repeat(2 * np.array(group, int), 2) + np.tile([0, 1], len(group))
+    G = sp.csr_matrix((np.ones(row), (rows_of, np.arange(row))),
+                      shape=(2 * len(groups), row)) @ to_map @ WA
+    M = (base + WA.T @ sp.diags(own2_) @ WA
+         + G.T @ sp.diags(np.repeat(shared2, 2)) @ G).tocsc()
     factor = cho_factor(H.toarray())  # dense: scipy's sparse LU solves many columns slowly
     out: dict[int, np.ndarray] = {}
     for start in range(0, len(landmarks), chunk):

@@ -24,14 +24,16 @@ def _four(sigma):
     return None if sigma is None else (sigma,) * 4 if np.isscalar(sigma) else tuple(sigma)
 
 
-def _seen_from(weights, own=None, shared=None, slots: int = 1, pose_sigma: float = 1e-6):
-    """A graph whose keyframes (one per entry of ``weights``, known to ``pose_sigma``) each
-    see ``slots`` slots (the same corners, landmarks 0..slots-1) with corner sigma
-    ``weights[k]``; and the sightings."""
+def _seen_from(weights, own=None, shared=None, slots: int = 1, pose_sigma: float = 1e-6,
+               headings=None):
+    """A graph whose keyframes (one per entry of ``weights``, known to ``pose_sigma``, headed
+    ``headings[k]``, default 0) each see ``slots`` slots (the same corners, landmarks
+    0..slots-1) with corner sigma ``weights[k]``; and the sightings."""
     graph = Graph()
     sightings = []
-    for k in range(len(weights)):
-        pose = np.array([0.3 * k, 0.0, 0.0])
+    headings = np.zeros(len(weights)) if headings is None else np.asarray(headings, float)
+    poses = [np.array([0.3 * k, 0.0, headings[k]]) for k in range(len(weights))]
+    for k, pose in enumerate(poses):
         graph.add_pose(X(k), pose)
         graph.add_factor(gtsam.PriorFactorPose2(X(k), gtsam.Pose2(*pose),
                                                 gtsam.noiseModel.Isotropic.Sigma(3, pose_sigma)))
@@ -40,7 +42,8 @@ def _seen_from(weights, own=None, shared=None, slots: int = 1, pose_sigma: float
         for key, corner in zip(keys, CORNERS, strict=True):
             graph.add_point(key, corner)
         for k, weight in enumerate(weights):
-            seen = CORNERS - (0.3 * k, 0.0)  # the vehicle frame of keyframe k
+            c, s = np.cos(poses[k][2]), np.sin(poses[k][2])
+            seen = (CORNERS - poses[k][:2]) @ np.array([[c, -s], [s, c]])  # keyframe k's frame
             obs = SlotObservation(seen, SlotKind.PERPENDICULAR, None, 0.0, 1.0, weight,
                                   corner_sigma_own=_four(own), corner_sigma_shared=_four(shared))
             index = graph.add_factor(custom_factor(
@@ -89,6 +92,18 @@ def test_a_shared_error_does_not_average_away():
     np.testing.assert_allclose(np.diag(cov), np.repeat(expected, 2), rtol=1e-6)
     alone = _sandwich(*_seen_from([0.30] * n, own, None))[0]
     assert np.diag(alone) == pytest.approx(own**2 / n, rel=3e-3)
+
+
+def test_the_shared_error_is_one_in_the_map_frame_from_every_side():
+    """Sightings from opposite sides see the slot's shared (map-frame) error turned by 180
+    degrees in their own frames; it does not cancel in their mean."""
+    n, own, shared = 8, 0.02, 0.03
+    both_ways = _seen_from([0.3] * n, own, shared, headings=[0.0, np.pi] * (n // 2))
+    cov = _sandwich(*both_ways)[0]
+    expected = _weighted_mean_variance([0.3] * n, own, shared)
+    np.testing.assert_allclose(np.diag(cov), np.repeat(expected, 2), rtol=1e-6)
+    turned = _sandwich(*_seen_from([0.3] * n, own, shared, headings=[0.7] * n))[0]
+    np.testing.assert_allclose(turned, cov, rtol=1e-6, atol=1e-12)
 
 
 def test_unequal_weights_give_the_weighted_means_variance():
