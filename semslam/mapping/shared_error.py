@@ -149,7 +149,10 @@ def sandwich_covariances(
     H = (base + A.T @ WA).tocsc()
     # the shared error is the same map-frame vector in every sighting of a slot's corner:
     # each corner's two rows turned into the map frame, then summed over the slot's sightings
-    to_map = sp.block_diag(turns, format="csr") if turns else sp.csr_matrix((0, 0))
+    first = 2 * np.arange(len(turns))[:, None]
+    to_map = sp.csr_matrix((np.ravel(turns), (np.ravel(first + [0, 0, 1, 1]),
+                                               np.ravel(first + [0, 1, 0, 1]))),
+                           shape=(row, row))
     rows_of = np.repeat(2 * np.array(group, int), 2) + np.tile([0, 1], len(group))
     G = sp.csr_matrix((np.ones(row), (rows_of, np.arange(row))),
                       shape=(2 * len(groups), row)) @ to_map @ WA
