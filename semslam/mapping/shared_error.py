@@ -23,6 +23,7 @@ Only slot corners get these covariances; tags and lines keep the graph's margina
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -112,7 +113,7 @@ def sandwich_covariances(
     inv_w2, own2 = [], []  # per row: 1 / w^2, own^2
     turns, group = [], []  # per corner seen: vehicle -> map rotation (2, 2), (slot, corner)
     groups: dict[tuple[int, int], int] = {}
-    shared2: list[float] = []
+    shared2: dict[int, float] = defaultdict(float)  # per group: the largest declared, m^2
     row = 0
     for f in sightings:
         if f.landmark is None:
@@ -133,8 +134,6 @@ def sandwich_covariances(
             own2 += [own[k] ** 2] * 2
             turns.append(H[corners[k]][2 * k : 2 * k + 2].T)  # the corner's rows: R^T
             g = groups.setdefault((slot, k), len(groups))
-            if g == len(shared2):
-                shared2.append(0.0)
             shared2[g] = max(shared2[g], shared[k] ** 2)
             group.append(g)
         row += 8
@@ -157,7 +156,7 @@ def sandwich_covariances(
     G = sp.csr_matrix((np.ones(row), (rows_of, np.arange(row))),
                       shape=(2 * len(groups), row)) @ to_map @ WA
     M = (base + WA.T @ sp.diags(own2_) @ WA
-         + G.T @ sp.diags(np.repeat(shared2, 2)) @ G).tocsc()
+         + G.T @ sp.diags(np.repeat([shared2[g] for g in range(len(groups))], 2)) @ G).tocsc()
     factor = cho_factor(H.toarray())  # dense: scipy's sparse LU solves many columns slowly
     out: dict[int, np.ndarray] = {}
     for start in range(0, len(landmarks), chunk):
