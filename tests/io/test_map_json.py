@@ -227,3 +227,64 @@ def test_a_marking_sigma_round_trips_and_may_be_absent(tmp_path: Path) -> None:
         with pytest.raises(MapError, match="markings/0/sigma") as err:
             load_map(tmp_path / "bad.json")
         assert "\n" not in str(err.value)
+
+
+def _paths(node, prefix=()):
+    """Every (path, value) in a JSON document, containers included."""
+    yield prefix, node
+    if isinstance(node, dict):
+        for key, value in node.items():
+            yield from _paths(value, (*prefix, key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            yield from _paths(value, (*prefix, i))
+
+
+def _replaced(document, path, value):
+    copy = json.loads(json.dumps(document))
+    if not path:
+        return value
+    node = copy
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    return copy
+
+
+def _removed(document, path):
+    copy = json.loads(json.dumps(document))
+    node = copy
+    for key in path[:-1]:
+        node = node[key]
+    del node[path[-1]]
+    return copy
+
+
+def test_the_compiled_validator_agrees_with_jsonschema(tmp_path: Path) -> None:
+    """The fast path of validation (fastjsonschema) accepts exactly what jsonschema accepts:
+    a value at each place of a saved map replaced by each of a set of wrong or edge values,
+    its key or array item removed, its array made one longer."""
+    from semslam.io._schema import _validator, is_valid
+
+    _, document = _saved(tmp_path)
+    reference = _validator("map")
+    swaps = [None, True, "x", -1, 0, 1.0, 0.5, 1.5, 1e20, [], [1.0], {"a": 1}]
+    checked = refused = 0
+    seen = set()
+    for path, value in list(_paths(document)):
+        place = tuple("*" if isinstance(key, int) else key for key in path)
+        if place in seen:  # one of each place in the schema: slots/*/corners/*/*, ...
+            continue
+        seen.add(place)
+        variants = [_replaced(document, path, swap) for swap in swaps if swap != value
+                    or type(swap) is not type(value)]
+        if path:
+            variants.append(_removed(document, path))
+        if isinstance(value, list):
+            variants.append(_replaced(document, path, [*value, value[-1] if value else 0.0]))
+        for variant in variants:
+            expected = reference.is_valid(variant)
+            assert is_valid(variant, "map") == expected, (path, variant if not path else None)
+            checked += 1
+            refused += not expected
+    assert checked > 400 and refused > checked // 2
