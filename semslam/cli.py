@@ -102,6 +102,12 @@ ConfigOption = Annotated[
     Path | None,
     typer.Option("--config", help="JSON file overriding defaults (see `semslam dump-config`)."),
 ]
+PxPerMetreOption = Annotated[
+    float | None,
+    typer.Option("--px-per-m", help="Ground resolution of the top views, pixels per metre "
+                 "(default: an image's longer side spans 10 m, as ps2.0's 600 px do).",
+                 min=1e-6),
+]
 
 
 @app.callback()
@@ -334,18 +340,20 @@ def detect(
         typer.Option(metavar="DIR", help="Write each image with its detections drawn."),
     ] = None,
     lines: Annotated[bool, typer.Option(help="Also find painted lines (Houben).")] = True,
+    px_per_m: PxPerMetreOption = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
     """Marking points, slots with their painted IDs, and painted lines in top views.
 
-    ps2.0 top views: 600 x 600 px, 10 m, car in the middle (--json: {"images": [{"image",
-    "points", "slots", "markings"}]})."""
+    Top views as ps2.0's: the car in the middle, 10 m across (600 x 600 px; another size is
+    resampled, see --px-per-m). --json: {"images": [{"image", "points", "slots",
+    "markings"}]}, pixels in each image's own."""
     from semslam.pipeline.detect import detect_files
     from semslam.reporting import print_metrics
 
     try:
         overlay_dir = None if overlay is None else _output_folder(overlay, "--overlay")
-        result = detect_files(images, overlay_dir, lines=lines)
+        result = detect_files(images, overlay_dir, lines=lines, px_per_m=px_per_m)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:
@@ -482,15 +490,19 @@ def evaluate_detections(
                      "give them (ps2.0 points a slot's second L junction along the entrance; "
                      "by default it is turned to its separator, as semslam reports it)."),
     ] = False,
+    px_per_m: PxPerMetreOption = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ) -> None:
-    """Marking-point and slot precision / recall with the ps2.0 metric (10 px, 30 deg)."""
+    """Marking-point and slot precision / recall with the ps2.0 metric (10 px, 30 deg).
+
+    The 10 px are ps2.0's (60 px per metre) whatever the images' size."""
     from semslam.pipeline.detect import evaluate_detection_folder
     from semslam.reporting import print_metrics
 
     try:
         metrics = evaluate_detection_folder(images_dir, labels_dir,
-                                            separator_convention=not label_directions)
+                                            separator_convention=not label_directions,
+                                            px_per_m=px_per_m)
     except (SemslamError, OSError) as e:
         _fail(e)
     print_metrics("detection evaluation", metrics, json_output)

@@ -52,6 +52,54 @@ def test_detect_prints_json_and_writes_overlays(labelled_views, tmp_path):
     assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == [p.stem + ".png" for p in images]
 
 
+def test_detect_reads_a_view_of_another_size_in_its_own_pixels(labelled_views, tmp_path):
+    """A view resized to 450 px (its 10 m at 45 px per metre) or cut to 600 x 480 around the
+    car gives the slots of the original in the vehicle frame, in the image's pixels."""
+    source = sorted((labelled_views / "images").iterdir())[0]
+    image = cv2.imread(str(source))
+    small, narrow = tmp_path / "small.png", tmp_path / "narrow.png"
+    cv2.imwrite(str(small), cv2.resize(image, (450, 450), interpolation=cv2.INTER_AREA))
+    cv2.imwrite(str(narrow), image[:, 60:540])
+    result = _run("detect", source, small, narrow, "--json", "--no-lines")
+    assert result.exit_code == 0, result.output
+    original, resized, cut = json.loads(result.stdout)["images"]
+    assert original["slots"], "the view should show slots"
+    for entry, to_image in ((resized, lambda uv: (uv + 0.5) * 0.75 - 0.5),
+                            (cut, lambda uv: uv - [60.0, 0.0])):
+        assert len(entry["slots"]) == len(original["slots"])
+        for a, b in zip(original["slots"], entry["slots"], strict=True):
+            np.testing.assert_allclose(b["corners_vehicle"], a["corners_vehicle"], atol=0.12)
+            np.testing.assert_allclose(b["corners_px"], to_image(np.array(a["corners_px"])),
+                                       atol=8.0)
+    wide = _run("detect", source, "--px-per-m", "40")
+    assert wide.exit_code == 2 and "covers 15.0 m" in wide.stderr
+
+
+def test_evaluate_detections_scores_resized_views_in_ps2_units(labelled_views, tmp_path):
+    """The ps2.0 metric's 10 px are ps2.0's (1/6 m) on views of any size: labelled views
+    resized to 450 px score as the originals do."""
+    for sub in ("images", "labels"):
+        (tmp_path / sub).mkdir()
+    for path in sorted((labelled_views / "images").iterdir()):
+        image = cv2.imread(str(path))
+        cv2.imwrite(str(tmp_path / "images" / path.name),
+                    cv2.resize(image, (450, 450), interpolation=cv2.INTER_AREA))
+        doc = json.loads((labelled_views / "labels" / f"{path.stem}.json").read_text())
+        marks = np.array(doc["marks"], float).reshape(-1, 5)
+        marks[:, :4] = (marks[:, :4] + 0.5) * 0.75 - 0.5
+        doc["marks"] = marks.tolist()
+        (tmp_path / "labels" / f"{path.stem}.json").write_text(json.dumps(doc))
+    scores = []
+    for root in (labelled_views, tmp_path):
+        result = _run("evaluate", "detections", root / "images", root / "labels", "--json")
+        assert result.exit_code == 0, result.output
+        scores.append(json.loads(result.stdout))
+    original, resized = scores
+    assert resized["point_labels"] == original["point_labels"]
+    assert abs(resized["point_true_positives"] - original["point_true_positives"]) <= 1
+    assert abs(resized["slot_true_positives"] - original["slot_true_positives"]) <= 1
+
+
 def test_detect_refuses_a_file_that_is_not_an_image(tmp_path):
     bad = tmp_path / "x.png"
     bad.write_text("not an image")

@@ -6,6 +6,10 @@ each top view and returns the JSON document the command prints::
     {"images": [{"image": PATH, "width": W, "height": H, "points": [...], "slots": [...],
                  "markings": [...], "timings_ms": {...}}]}
 
+An image of any size is read as a top view whose longer side spans ps2.0's 10 m, or at the
+ground resolution given (``px_per_m``), and brought into the detectors' frame for them
+(:mod:`semslam.perception.view_frame`); every pixel in the result is the image's own.
+
 Per marking point: ``u``, ``v`` (px, OpenCV pixel centres), ``direction_deg`` (image
 coordinates, atan2(dv, du), along the separator into the slot), ``shape`` (T or L),
 ``confidence``. Per slot: ``points`` (0-based indices of its entrance points),
@@ -35,6 +39,7 @@ from semslam.evaluation.detection_metrics import DetectionCounts, score_image
 from semslam.io.atomic import atomic_write_bytes
 from semslam.io.images import read_image
 from semslam.perception.topview_perception import TopviewDetections, TopviewPerception
+from semslam.perception.view_frame import ViewFrame, into_detector_frame, view_frame
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
@@ -43,24 +48,33 @@ def _r(values: Any, digits: int = 3) -> Any:
     return np.round(np.asarray(values, dtype=float), digits).tolist()
 
 
-def detections_json(perception: TopviewPerception, det: TopviewDetections) -> dict[str, Any]:
-    """Points, slots with IDs and lines of one image, JSON-ready."""
+def _identity(shape: tuple[int, ...]) -> ViewFrame:
+    return ViewFrame((int(shape[0]), int(shape[1])), (1.0, 1.0), (0, 0))
+
+
+def detections_json(
+    perception: TopviewPerception, det: TopviewDetections, frame: ViewFrame | None = None
+) -> dict[str, Any]:
+    """Points, slots with IDs and lines of one image, JSON-ready; ``det`` in the detectors'
+    frame, pixels reported in the image's (``frame``; None: the same)."""
     observations = perception.slot_observations(det)
+    frame = frame or _identity((perception.spec.size_px,) * 2)
+    uv = frame.to_image(np.array([p.uv for p in det.points], float))
     return {
         "points": [
             {
-                "u": round(float(p.uv[0]), 2),
-                "v": round(float(p.uv[1]), 2),
-                "direction_deg": round(math.degrees(p.direction), 2),
+                "u": round(float(u), 2),
+                "v": round(float(v), 2),
+                "direction_deg": round(math.degrees(frame.direction_to_image(p.direction)), 2),
                 "shape": str(p.shape),
                 "confidence": round(float(p.confidence), 4),
             }
-            for p in det.points
+            for p, (u, v) in zip(det.points, uv, strict=True)
         ],
         "slots": [
             {
                 "points": [int(s.i), int(s.j)],
-                "corners_px": _r(s.uv_corners, 2),
+                "corners_px": _r(frame.to_image(s.uv_corners), 2),
                 "corners_vehicle": _r(o.vCorners, 4),
                 "kind": str(s.kind),
                 "angle_deg": round(float(s.angle_deg), 2),
@@ -79,14 +93,17 @@ def detections_json(perception: TopviewPerception, det: TopviewDetections) -> di
 
 
 def draw_overlay(
-    image: np.ndarray, perception: TopviewPerception, det: TopviewDetections
+    image: np.ndarray, perception: TopviewPerception, det: TopviewDetections,
+    frame: ViewFrame | None = None,
 ) -> np.ndarray:
     """The image with lines (blue), slots (green, with their IDs) and marking points
-    (red T, orange L, with direction) drawn on it."""
+    (red T, orange L, with direction) drawn on it; ``det`` in the detectors' frame, placed
+    on the image by ``frame`` (None: the image is in that frame)."""
     out = image.copy()
     spec = perception.spec
+    frame = frame or _identity(image.shape)
     for m in det.markings:
-        a, b = spec.vehicle_to_pixel(np.array([m.vA, m.vB]))
+        a, b = frame.to_image(spec.vehicle_to_pixel(np.array([m.vA, m.vB])))
         cv2.line(
             out,
             tuple(int(round(x)) for x in a),
@@ -96,20 +113,22 @@ def draw_overlay(
             cv2.LINE_AA,
         )
     for s, r in zip(det.slots, det.ids, strict=True):
-        poly = np.round(np.asarray(s.uv_corners)).astype(np.int32)
+        corners = frame.to_image(s.uv_corners)
+        poly = np.round(corners).astype(np.int32)
         cv2.polylines(out, [poly], True, (0, 220, 0), 2, cv2.LINE_AA)
         if r.label:
-            centre = np.asarray(s.uv_corners, float).mean(axis=0)
+            centre = corners.mean(axis=0)
             text = f"{r.label} {r.confidence:.2f}"
             org = (int(centre[0]) - 30, int(centre[1]))
             cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
             cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 0), 1, cv2.LINE_AA)
     for p in det.points:
-        u, v = float(p.uv[0]), float(p.uv[1])
+        u, v = frame.to_image(p.uv)[0]
+        direction = float(frame.direction_to_image(p.direction))
         colour = (0, 0, 255) if str(p.shape) == "T" else (0, 140, 255)
         tip = (
-            int(round(u + 25 * math.cos(p.direction))),
-            int(round(v + 25 * math.sin(p.direction))),
+            int(round(u + 25 * math.cos(direction))),
+            int(round(v + 25 * math.sin(direction))),
         )
         cv2.circle(out, (int(round(u)), int(round(v))), 5, colour, 2, cv2.LINE_AA)
         cv2.line(out, (int(round(u)), int(round(v))), tip, colour, 2, cv2.LINE_AA)
@@ -128,13 +147,17 @@ def detect_files(
     overlay_dir: str | os.PathLike[str] | None = None,
     lines: bool = True,
     perception: TopviewPerception | None = None,
+    px_per_m: float | None = None,
 ) -> dict[str, Any]:
     """Run the top-view detectors on every image; the JSON-ready result (module doc).
+    ``px_per_m``: the images' ground resolution (None: each one's longer side spans the
+    detectors' 10 m).
 
     Raises:
         FormatError: an image is missing or unreadable, or two images would write the same
             overlay (the same file name in two folders).
-        PerceptionError: a model is missing or broken, or an image has the wrong type.
+        PerceptionError: a model is missing or broken, an image has the wrong type, or it
+            covers more ground than the detectors' view.
     """
     if overlay_dir is not None:
         stems: dict[str, str] = {}
@@ -149,7 +172,8 @@ def detect_files(
     for path in images:
         image = read_image(path)
         try:
-            det = perception.detect(image)
+            frame = view_frame(image.shape, px_per_m, perception.spec)
+            det = perception.detect(into_detector_frame(image, frame, perception.spec))
         except SemslamError as e:  # name the image: the detectors do not know it
             message = str(e)
             raise PerceptionError(
@@ -160,12 +184,13 @@ def detect_files(
                 "image": os.fspath(path),
                 "width": int(image.shape[1]),
                 "height": int(image.shape[0]),
-                **detections_json(perception, det),
+                **detections_json(perception, det, frame),
             }
         )
         if overlay_dir is not None:
             target = Path(overlay_dir) / f"{Path(path).stem}.png"
-            overlays.append((target, _encode_png(target, draw_overlay(image, perception, det))))
+            picture = draw_overlay(image, perception, det, frame)
+            overlays.append((target, _encode_png(target, picture)))
     for target, data in overlays:
         atomic_write_bytes(target, data)
     return {"images": out}
@@ -177,9 +202,12 @@ def evaluate_detection_folder(
     perception: TopviewPerception | None = None,
     progress: Callable[[int, int], None] | None = None,
     separator_convention: bool = True,
+    px_per_m: float | None = None,
 ) -> dict[str, Any]:
     """Score the detectors on every image of ``images_dir`` that has a label file
-    ``labels_dir/<stem>.json`` (DMPR-PS form) with the ps2.0 metric.
+    ``labels_dir/<stem>.json`` (DMPR-PS form) with the ps2.0 metric, in the detectors' frame
+    (10 px there are ps2.0's 10 px: 1/6 m), whatever the images' size (``px_per_m`` as in
+    :func:`detect_files`).
 
     With ``separator_convention`` the labels' L junctions that ps2.0 directs along the
     entrance are directed along their separator first, as semslam reports every point
@@ -213,7 +241,12 @@ def evaluate_detection_folder(
         raw = read_dmpr_labels(labels_dir / f"{path.stem}.json")
         labels = raw.with_separator_directions() if separator_convention else raw
         redirected += int(np.count_nonzero(labels.directions != raw.directions))
-        det = perception.detect(read_image(path))
+        image = read_image(path)
+        try:
+            frame = view_frame(image.shape, px_per_m, perception.spec)
+        except SemslamError as e:
+            raise PerceptionError(f"{path}: {e}") from None
+        det = perception.detect(into_detector_frame(image, frame, perception.spec))
         points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
         total += score_image(
             points,
@@ -221,8 +254,8 @@ def evaluate_detection_folder(
             np.array([0 if str(p.shape) == "T" else 1 for p in det.points], int),
             np.array([p.confidence for p in det.points], float),
             np.array([[s.i, s.j] for s in det.slots], int).reshape(-1, 2),
-            labels.points,
-            labels.directions,
+            frame.to_detector(labels.points),
+            frame.direction_to_detector(labels.directions),
             labels.shapes,
             labels.slots,
         )
