@@ -290,9 +290,9 @@ def test_topview_perception_reads_slots_and_ids_on_its_own_grid():
 def test_detect_names_the_image_too_wide_for_the_detectors(tmp_path):
     image = tmp_path / "wide.png"
     cv2.imwrite(str(image), np.zeros((79, 105, 3), np.uint8))
-    line = _fails(_run("detect", image, "--px-per-m", "5"), "105 x 79 px at 5 px per metre")
+    line = _fails(_run("detect", image, "--px-per-m", "10"), "105 x 79 px at 10 px per metre")
     assert line.startswith(f"semslam: error: {image}: "), line
-    assert "covers 21.0 m" in line
+    assert "covers 10.5 m" in line
     assert _run("detect", image).exit_code == 0  # read as 10 m across, as ps2.0's views
 
 

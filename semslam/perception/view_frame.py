@@ -22,6 +22,12 @@ from semslam.errors import PerceptionError
 from semslam.geometry import FloatArray
 from semslam.rig import TopviewSpec
 
+MIN_PX_PER_M = 10.0
+"""Coarsest ground resolution read: a painted line (0.10-0.20 m) is 1-2 px there."""
+
+MIN_SIDE_PX = 16
+"""Smallest image side read."""
+
 
 @dataclass(frozen=True)
 class ViewFrame:
@@ -71,24 +77,34 @@ def view_frame(
     is ``px_per_m``; None: its longer side spans the detectors' view (ps2.0: 10 m).
 
     Raises:
-        PerceptionError: ``px_per_m`` is not a positive number, or the image covers more
+        PerceptionError: ``px_per_m`` is not a positive number, the image is smaller than
+            :data:`MIN_SIDE_PX` or coarser than :data:`MIN_PX_PER_M`, or it covers more
             ground than the detectors' view (they read one 10 m view; crop it).
     """
     spec = spec or TopviewSpec()
     height, width = (int(n) for n in image_shape[:2])
     side = spec.size_px
+    if min(height, width) < MIN_SIDE_PX:
+        raise PerceptionError(f"top view of {width} x {height} px: too small to read "
+                              f"(at least {MIN_SIDE_PX} px a side)")
     if px_per_m is None:
         factor = side / max(height, width)
     else:
         if not (np.isfinite(px_per_m) and px_per_m > 0):
             raise PerceptionError(f"--px-per-m {px_per_m}: expected a number > 0")
         factor = 1.0 / (px_per_m * spec.metres_per_px)
+    resolution = 1.0 / (factor * spec.metres_per_px)
+    if resolution < MIN_PX_PER_M:
+        raise PerceptionError(
+            f"top view of {width} x {height} px at {resolution:g} px per metre: too coarse to "
+            f"read (at least {MIN_PX_PER_M:g} px per metre; give its --px-per-m)"
+        )
     new_w, new_h = max(1, round(width * factor)), max(1, round(height * factor))
     if new_w > side or new_h > side:
         extent = max(height, width) * factor * spec.metres_per_px
         raise PerceptionError(
-            f"top view of {width} x {height} px at {1.0 / (factor * spec.metres_per_px):g} px "
-            f"per metre covers {extent:.1f} m; the detectors read views of at most "
+            f"top view of {width} x {height} px at {resolution:g} px per metre covers "
+            f"{extent:.1f} m; the detectors read views of at most "
             f"{side * spec.metres_per_px:g} m (crop it, or give its --px-per-m)"
         )
     return ViewFrame((height, width), (new_w / width, new_h / height),
@@ -112,4 +128,4 @@ def into_detector_frame(image: np.ndarray, frame: ViewFrame,
                               cv2.BORDER_CONSTANT, value=0)
 
 
-__all__ = ["ViewFrame", "into_detector_frame", "view_frame"]
+__all__ = ["MIN_PX_PER_M", "MIN_SIDE_PX", "ViewFrame", "into_detector_frame", "view_frame"]

@@ -59,3 +59,11 @@ def test_a_view_wider_than_the_detectors_is_refused_with_its_size():
     for bad in (0.0, -3.0, float("nan"), float("inf")):
         with pytest.raises(PerceptionError, match="--px-per-m"):
             view_frame((600, 600, 3), px_per_m=bad)
+
+
+def test_a_view_too_small_or_too_coarse_is_refused():
+    with pytest.raises(PerceptionError, match=r"8 x 8 px: too small"):
+        view_frame((8, 8, 3))
+    with pytest.raises(PerceptionError, match=r"80 x 80 px at 8 px per metre: too coarse"):
+        view_frame((80, 80, 3))
+    assert view_frame((100, 100, 3)).scale == (6.0, 6.0)  # 10 px per metre: read
