@@ -224,7 +224,7 @@ def information_problem(m: FloatArray) -> str | None:
 
 class _InformationChecks:
     """The information matrices of a file, checked together (:func:`information_problem`
-    over one stacked eigen-decomposition per size: a few ms for the 12,000 edges of a
+    over one stacked eigen-decomposition per size: 14 ms for the 11,858 edges of a
     `garage` map's graph, where one call per edge took most of the parse)."""
 
     def __init__(self) -> None:

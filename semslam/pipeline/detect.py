@@ -28,6 +28,7 @@ import math
 import os
 import statistics
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +51,22 @@ def _r(values: Any, digits: int = 3) -> Any:
 
 def _identity(shape: tuple[int, ...]) -> ViewFrame:
     return ViewFrame((int(shape[0]), int(shape[1])), (1.0, 1.0), (0, 0))
+
+
+def within_image(det: TopviewDetections, frame: ViewFrame) -> TopviewDetections:
+    """``det`` (detectors' frame) without the marking points that lie in the padding around
+    the image, and without the slots they make (the others' point indices renumbered)."""
+    height, width = frame.image_shape
+    uv = frame.to_image(np.array([p.uv for p in det.points], float))
+    keep = (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5) \
+        & (uv[:, 1] <= height - 0.5)
+    if keep.all():
+        return det
+    index = {old: new for new, old in enumerate(np.flatnonzero(keep))}
+    pairs = [(replace(s, i=index[s.i], j=index[s.j]), r)
+             for s, r in zip(det.slots, det.ids, strict=True) if s.i in index and s.j in index]
+    return replace(det, points=tuple(p for p, k in zip(det.points, keep, strict=True) if k),
+                   slots=tuple(s for s, _ in pairs), ids=tuple(r for _, r in pairs))
 
 
 def detections_json(
@@ -174,6 +191,7 @@ def detect_files(
         try:
             frame = view_frame(image.shape, px_per_m, perception.spec)
             det = perception.detect(into_detector_frame(image, frame, perception.spec))
+            det = within_image(det, frame)
         except SemslamError as e:  # name the image: the detectors do not know it
             message = str(e)
             raise PerceptionError(
@@ -246,7 +264,8 @@ def evaluate_detection_folder(
             frame = view_frame(image.shape, px_per_m, perception.spec)
         except SemslamError as e:
             raise PerceptionError(f"{path}: {e}") from None
-        det = perception.detect(into_detector_frame(image, frame, perception.spec))
+        det = within_image(perception.detect(into_detector_frame(image, frame, perception.spec)),
+                           frame)
         points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
         total += score_image(
             points,
@@ -278,4 +297,5 @@ __all__ = [
     "detections_json",
     "draw_overlay",
     "evaluate_detection_folder",
+    "within_image",
 ]

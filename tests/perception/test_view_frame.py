@@ -67,3 +67,27 @@ def test_a_view_too_small_or_too_coarse_is_refused():
     with pytest.raises(PerceptionError, match=r"80 x 80 px at 8 px per metre: too coarse"):
         view_frame((80, 80, 3))
     assert view_frame((100, 100, 3)).scale == (6.0, 6.0)  # 10 px per metre: read
+
+
+def test_points_in_the_padding_are_dropped_with_their_slots():
+    """A narrow view is padded to the detectors' square; a point found in the padding is not
+    in the image, and a slot that uses it goes too (the others keep their points)."""
+    from semslam.perception.marking_points import MarkingPoint
+    from semslam.perception.slot_ids import SlotIdReading
+    from semslam.perception.slots import DetectedSlot
+    from semslam.perception.topview_perception import TopviewDetections
+    from semslam.pipeline.detect import within_image
+    from semslam.types import JunctionShape, SlotKind
+
+    frame = view_frame((600, 480, 3))  # columns 60-539 of the detectors' frame are the image
+    points = tuple(MarkingPoint(np.array(uv, float), 0.0, JunctionShape.T, 0.9)
+                   for uv in ([30.0, 100.0], [200.0, 100.0], [200.0, 280.0], [400.0, 280.0]))
+    corners = np.zeros((4, 2))
+    slots = (DetectedSlot(0, 1, corners, SlotKind.PERPENDICULAR, 90.0, 0.8),
+             DetectedSlot(2, 3, corners, SlotKind.PERPENDICULAR, 90.0, 0.7))
+    ids = (SlotIdReading("A1", 0.9, (0.9, 0.9)), SlotIdReading("A2", 0.8, (0.9, 0.9)))
+    kept = within_image(TopviewDetections(points, slots, ids), frame)
+    assert [tuple(p.uv) for p in kept.points] == [(200.0, 100.0), (200.0, 280.0), (400.0, 280.0)]
+    assert [(s.i, s.j) for s in kept.slots] == [(1, 2)] and kept.ids == ids[1:]
+    whole = TopviewDetections(points[1:], (), ())
+    assert within_image(whole, frame) is whole
