@@ -62,7 +62,7 @@ def within_image(det: TopviewDetections, frame: ViewFrame) -> TopviewDetections:
         & (uv[:, 1] <= height - 0.5)
     if keep.all():
         return det
-    index = {old: new for new, old in enumerate(np.flatnonzero(keep))}
+    index = {int(old): new for new, old in enumerate(np.flatnonzero(keep))}
     pairs = [(replace(s, i=index[s.i], j=index[s.j]), r)
              for s, r in zip(det.slots, det.ids, strict=True) if s.i in index and s.j in index]
     return replace(det, points=tuple(p for p, k in zip(det.points, keep, strict=True) if k),
