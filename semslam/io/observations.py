@@ -18,6 +18,7 @@ semi-definite.
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Iterable
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from semslam.errors import FormatError
+from semslam.geometry import FloatArray
 from semslam.io._fields import Field, check_covariance
 from semslam.io._json import (
     find_non_finite,
@@ -161,12 +163,20 @@ MIN_SLOT_SIDE = 0.05
 """m: a slot whose side is shorter is no slot (its rectangle has no direction to fit)."""
 
 
+def shortest_side(corners: FloatArray) -> float:
+    """The shortest side of the quadrilateral of ``corners`` ((4, 2), in order), m (in
+    floats: it runs for every slot a drive's observation file holds)."""
+    points = corners.tolist()
+    return min(math.hypot(x1 - x0, y1 - y0)
+               for (x0, y0), (x1, y1) in zip(points, points[1:] + points[:1], strict=True))
+
+
 def _slot_from_field(f: Field) -> SlotObservation:
     label, own, shared = f.get("label"), f.get("corner_sigma_own"), f.get("corner_sigma_shared")
     corners = f["corners"].array((4, 2), within=MAX_RANGE)
-    sides = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
-    if sides.min() < MIN_SLOT_SIDE:
-        f["corners"].fail(f"a side of {sides.min():.3g} m: corners must be at least "
+    side = shortest_side(corners)
+    if side < MIN_SLOT_SIDE:
+        f["corners"].fail(f"a side of {side:.3g} m: corners must be at least "
                           f"{MIN_SLOT_SIDE} m apart")
     return SlotObservation(
         vCorners=corners,

@@ -286,3 +286,12 @@ def test_which_lines_need_the_non_finite_walk(text: str, expected: bool) -> None
     from semslam.io._json import may_hold_non_finite
 
     assert may_hold_non_finite(text) is expected
+
+
+def test_the_shortest_side_counts_the_side_that_closes_the_slot():
+    from semslam.io.observations import shortest_side
+
+    assert shortest_side(np.array([[0.0, 0.0], [2.5, 0.0], [2.5, 5.0], [0.0, 5.0]])) == 2.5
+    # only the side from the last corner back to the first is short
+    assert shortest_side(np.array([[0.0, 0.0], [2.5, 0.0], [2.5, 5.0], [0.0, 0.03]])) \
+        == pytest.approx(0.03)
