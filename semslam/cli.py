@@ -334,7 +334,9 @@ def tags(
 
 @app.command()
 def detect(
-    images: Annotated[list[Path], typer.Argument(metavar="IMAGE...", help="Top-view images.")],
+    images: Annotated[
+        list[Path], typer.Argument(metavar="IMAGE...", help="Top-view images, or folders of them.")
+    ],
     overlay: Annotated[
         str | None,
         typer.Option(metavar="DIR", help="Write each image with its detections drawn."),

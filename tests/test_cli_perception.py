@@ -100,6 +100,18 @@ def test_evaluate_detections_scores_resized_views_in_ps2_units(labelled_views, t
     assert abs(resized["slot_true_positives"] - original["slot_true_positives"]) <= 1
 
 
+def test_detect_reads_a_folder_as_its_images(labelled_views, tmp_path):
+    folder = labelled_views / "images"
+    result = _run("detect", folder, "--json", "--no-lines")
+    assert result.exit_code == 0, result.output
+    images = [e["image"] for e in json.loads(result.stdout)["images"]]
+    assert images == [str(p) for p in sorted(folder.iterdir())]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    refused = _run("detect", empty)
+    assert refused.exit_code == 2 and "a folder with no image file" in refused.stderr
+
+
 def test_detect_refuses_a_file_that_is_not_an_image(tmp_path):
     bad = tmp_path / "x.png"
     bad.write_text("not an image")

@@ -159,6 +159,18 @@ def _encode_png(path: Path, image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def _image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:
+    """``path`` itself, or for a folder its image files (:data:`IMAGE_SUFFIXES`) by name."""
+    folder = Path(path)
+    if not folder.is_dir():
+        return [path]
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise FormatError(f"{folder}: a folder with no image file "
+                          f"({', '.join(IMAGE_SUFFIXES)})")
+    return files
+
+
 def detect_files(
     images: Sequence[str | os.PathLike[str]],
     overlay_dir: str | os.PathLike[str] | None = None,
@@ -166,16 +178,17 @@ def detect_files(
     perception: TopviewPerception | None = None,
     px_per_m: float | None = None,
 ) -> dict[str, Any]:
-    """Run the top-view detectors on every image; the JSON-ready result (module doc).
-    ``px_per_m``: the images' ground resolution (None: each one's longer side spans the
-    detectors' 10 m).
+    """Run the top-view detectors on every image (a folder: its image files, by name); the
+    JSON-ready result (module doc). ``px_per_m``: the images' ground resolution (None: each
+    one's longer side spans the detectors' 10 m).
 
     Raises:
-        FormatError: an image is missing or unreadable, or two images would write the same
-            overlay (the same file name in two folders).
+        FormatError: an image is missing or unreadable, a folder holds no image, or two
+            images would write the same overlay (the same file name in two folders).
         PerceptionError: a model is missing or broken, an image has the wrong type, or it
             covers more ground than the detectors' view.
     """
+    images = [path for given in images for path in _image_files(given)]
     if overlay_dir is not None:
         stems: dict[str, str] = {}
         for path in images:
