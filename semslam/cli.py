@@ -280,7 +280,9 @@ def localize(
 
 @app.command()
 def tags(
-    images: Annotated[list[Path], typer.Argument(metavar="IMAGE...", help="Image files.")],
+    images: Annotated[
+        list[Path], typer.Argument(metavar="IMAGE...", help="Image files, or folders of them.")
+    ],
     intrinsics: Annotated[
         str, typer.Option(metavar="FX,FY,CX,CY", help="Pinhole intrinsics, px (OpenCV).")
     ],

@@ -1,4 +1,5 @@
-"""Image files: read as 8-bit BGR or grey, or a one-line error naming the file."""
+"""Image files: read as 8-bit BGR or grey, or a one-line error naming the file; the image
+files of a folder."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ import cv2
 import numpy as np
 
 from semslam.errors import FormatError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+"""The file name endings taken for images in a folder (any case)."""
 
 _JPEG_START = b"\xff\xd8"
 _JPEG_END = b"\xff\xd9"
@@ -40,4 +44,21 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     return image
 
 
-__all__ = ["read_image"]
+def image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:
+    """``path`` itself, or for a folder its image files (:data:`IMAGE_SUFFIXES`) by name.
+
+    Raises:
+        FormatError: a folder with no image file.
+    """
+    folder = Path(path)
+    if not folder.is_dir():
+        return [path]
+    files: list[str | os.PathLike[str]] = sorted(
+        p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+    )
+    if not files:
+        raise FormatError(f"{folder}: a folder with no image file ({', '.join(IMAGE_SUFFIXES)})")
+    return files
+
+
+__all__ = ["IMAGE_SUFFIXES", "image_files", "read_image"]

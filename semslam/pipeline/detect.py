@@ -38,11 +38,9 @@ import numpy as np
 from semslam.errors import FormatError, PerceptionError, SemslamError
 from semslam.evaluation.detection_metrics import DetectionCounts, score_image
 from semslam.io.atomic import atomic_write_bytes
-from semslam.io.images import read_image
+from semslam.io.images import IMAGE_SUFFIXES, image_files, read_image
 from semslam.perception.topview_perception import TopviewDetections, TopviewPerception
 from semslam.perception.view_frame import ViewFrame, into_detector_frame, view_frame
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 
 def _r(values: Any, digits: int = 3) -> Any:
@@ -159,18 +157,6 @@ def _encode_png(path: Path, image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def _image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:
-    """``path`` itself, or for a folder its image files (:data:`IMAGE_SUFFIXES`) by name."""
-    folder = Path(path)
-    if not folder.is_dir():
-        return [path]
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise FormatError(f"{folder}: a folder with no image file "
-                          f"({', '.join(IMAGE_SUFFIXES)})")
-    return files
-
-
 def detect_files(
     images: Sequence[str | os.PathLike[str]],
     overlay_dir: str | os.PathLike[str] | None = None,
@@ -188,7 +174,7 @@ def detect_files(
         PerceptionError: a model is missing or broken, an image has the wrong type, or it
             covers more ground than the detectors' view.
     """
-    images = [path for given in images for path in _image_files(given)]
+    images = [path for given in images for path in image_files(given)]
     if overlay_dir is not None:
         stems: dict[str, str] = {}
         for path in images:

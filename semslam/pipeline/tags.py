@@ -29,7 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from semslam.io.images import read_image
+from semslam.io.images import image_files, read_image
 from semslam.perception.tag_detection import DetectorSettings, PerceptionError, parse_family
 from semslam.perception.tag_pose import PositionVariant
 from semslam.perception.tags import TagEstimate, TagSettings, estimate_tags
@@ -125,10 +125,11 @@ def tags_in_images(
     variant: str = "pnp",
     decimate: float = 1.0,
 ) -> dict:
-    """Detect tags and their poses in every image; the JSON-ready result.
+    """Detect tags and their poses in every image (a folder: its image files, by name); the
+    JSON-ready result.
 
     Raises:
-        FormatError: an image file is missing or unreadable.
+        FormatError: an image file is missing or unreadable, or a folder holds none.
         PerceptionError: bad intrinsics, distortion, tag size, family or variant.
     """
     if not (math.isfinite(tag_size) and 0 < tag_size <= MAX_TAG_SIZE):
@@ -149,7 +150,7 @@ def tags_in_images(
         detector=DetectorSettings(quad_decimate=float(decimate)),
     )
     out = []
-    for path in images:
+    for path in [path for given in images for path in image_files(given)]:
         gray = read_image(path, grey=True)
         camera = make_camera(intrinsics, distortion, fisheye, (gray.shape[1], gray.shape[0]))
         try:

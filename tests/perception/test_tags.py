@@ -374,6 +374,10 @@ def test_tags_command_prints_poses_as_json(rendered, tmp_path: Path) -> None:
     missing = runner.invoke(app, ["tags", str(tmp_path / "none.png"), "--intrinsics", k,
                                   "--tag-size", "0.5"])
     assert missing.exit_code == 2 and "none.png" in missing.output
+    folder = runner.invoke(app, ["tags", str(tmp_path), "--intrinsics", k, "--tag-size", "0.5",
+                                 "--json"])  # a folder: its images
+    assert folder.exit_code == 0, folder.output
+    assert [e["image"] for e in json.loads(folder.stdout)["images"]] == [str(path)]
 
 
 def test_a_decimation_that_leaves_almost_no_image_is_refused_not_crashed() -> None:
