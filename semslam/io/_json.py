@@ -29,10 +29,16 @@ def parse_json(text: str, source: str, error: type[SemslamError]) -> Any:
         if not text.strip():
             raise error(f"{source}: empty file, expected JSON") from None
         stripped = text.rstrip()
-        truncated = exc.pos >= len(stripped) or stripped[-1] not in "}]"
+        first = text.lstrip()[:1]
+        if first not in ("{", "["):  # another kind of file given where JSON belongs
+            hint = f" (it starts with {first!r}: not a JSON document)"
+        elif exc.pos >= len(stripped) or stripped[-1] not in "}]":
+            hint = " (the file looks truncated)"
+        else:
+            hint = ""
         raise error(
             f"{source}: not valid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}"
-            + (" (the file looks truncated)" if truncated else "")
+            + hint
         ) from None
     except (ValueError, RecursionError) as exc:  # e.g. an integer with 5000 digits
         raise error(f"{source}: not valid JSON: {first_line(exc)}") from None

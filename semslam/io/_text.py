@@ -18,6 +18,8 @@ def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
         data = Path(path).read_bytes()
     except FileNotFoundError:
         raise error(f"{os.fspath(path)}: file not found") from None
+    except IsADirectoryError:
+        raise error(f"{os.fspath(path)}: a folder, not a file") from None
     except OSError as exc:
         raise error(f"{os.fspath(path)}: cannot read ({exc.strerror or exc})") from None
     try:

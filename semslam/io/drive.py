@@ -98,6 +98,8 @@ class Drive:
                 refuses such a folder, whichever parts it goes on to read).
         """
         path = Path(folder)
+        if path.is_file():
+            raise DriveError(f"{os.fspath(path)}: a file, not a drive folder")
         if not path.is_dir():
             raise DriveError(f"{os.fspath(path)}: drive folder not found")
         missing = [name for name in REQUIRED_FILES if not (path / name).is_file()]

@@ -277,6 +277,9 @@ def test_drive_missing_required_file(drive_folder: Path, missing: str) -> None:
 def test_drive_missing_folder(tmp_path: Path) -> None:
     with pytest.raises(DriveError, match=r"nowhere: drive folder not found"):
         Drive.open(tmp_path / "nowhere")
+    (tmp_path / "map.json").write_text("{}")
+    with pytest.raises(DriveError, match=r"map\.json: a file, not a drive folder$"):
+        Drive.open(tmp_path / "map.json")
 
 
 def test_drive_unknown_observations_lists_available(drive_folder: Path) -> None:

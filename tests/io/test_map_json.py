@@ -288,3 +288,19 @@ def test_the_compiled_validator_agrees_with_jsonschema(tmp_path: Path) -> None:
             checked += 1
             refused += not expected
     assert checked > 400 and refused > checked // 2
+
+
+def test_another_kind_of_file_is_named_as_such_not_as_truncated(tmp_path: Path) -> None:
+    path = tmp_path / "trajectory.tum"
+    path.write_text("0.0 1 2 0 0 0 0 1\n0.1 1 2 0 0 0 0 1\n")
+    with pytest.raises(MapError) as err:
+        load_map(path)
+    message = str(err.value)
+    assert "it starts with '0': not a JSON document" in message and "truncated" not in message
+
+
+def test_a_folder_given_as_the_map_is_named_as_one(tmp_path: Path) -> None:
+    folder = tmp_path / "maps"
+    folder.mkdir()
+    with pytest.raises(MapError, match=r"maps: a folder, not a file$"):
+        load_map(folder)
