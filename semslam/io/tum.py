@@ -94,8 +94,9 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
         where = f"{name} line {lineno}"
         tokens = text.split()
         if len(tokens) != len(_COLUMNS):
+            kind = " (a JSON file? a TUM trajectory is text rows)" if text[0] in "{[" else ""
             raise FormatError(
-                f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}"
+                f"{where}: expected 8 columns (t x y z qx qy qz qw), got {len(tokens)}{kind}"
             )
         row = [
             parse_number(tok, where, col, FormatError, *_BOUNDS.get(col, ()))

@@ -70,6 +70,7 @@ def test_comments_and_blank_lines_are_skipped(tmp_path: Path) -> None:
     ("content", "message"),
     [
         ("0 1 2 0 0 0 0 1\n1 2 3 0 0 0 1\n", r"traj\.tum line 2: expected 8 columns .*got 7"),
+        ('{"format": "semslam-map"}\n', r"traj\.tum line 1: .*got 2 \(a JSON file\? a TUM"),
         ("0 1 2 0 0 0 0 1\n1 2 y 0 0 0 0 1\n", r"traj\.tum line 2: y is not a number \('y'\)"),
         ("0 1 2 0 0 0 0 1\n1 nan 3 0 0 0 0 1\n", r"traj\.tum line 2: x is NaN"),
         ("# c\n0 1 2 0 0 0 0 1\n1 1 3 0 0 0 0 inf\n", r"traj\.tum line 3: qw is infinite"),
