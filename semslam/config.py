@@ -483,6 +483,8 @@ def _build(data: dict[str, Any], where: str) -> SemslamConfig:
         err = e.errors()[0]
         field = ".".join(str(p) for p in err["loc"])
         message = str(err["msg"]).removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":  # pydantic's "Extra inputs are not permitted"
+            message = "not a setting semslam knows (`semslam dump-config` lists them)"
         variable = _environment_variable(tuple(err["loc"]))
         # a variable is blamed for a field only if it holds the value that failed; for a
         # section's cross-field check (its input the section) one of the section's is named

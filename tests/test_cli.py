@@ -155,6 +155,10 @@ def test_broken_config_file_is_one_line_error(tmp_path):
     cfg.write_text('{"simulation": ')
     result = _run("dump-config", "--config", cfg)
     assert result.exit_code == 2 and "c.json" in result.stderr
+    cfg.write_text('{"mapping": {"corner_sigma_typo": 0.1}}')  # a misspelt setting
+    result = _run("dump-config", "--config", cfg)
+    assert result.exit_code == 2
+    assert "c.json: mapping.corner_sigma_typo: not a setting semslam knows" in result.stderr
 
 
 def test_unknown_preset_exits_nonzero(tmp_path):
