@@ -142,6 +142,15 @@ def test_evaluate_detections_scores_labelled_views(labelled_views):
     for key in ("point_precision", "point_recall", "slot_precision", "slot_recall"):
         assert 0.0 <= m[key] <= 1.0
     assert m["point_recall"] > 0.5  # the shipped model finds most points of simple views
+    per_image = m["per_image"]  # which views fail: the pooled counts, view by view
+    assert [e["image"] for e in per_image] == sorted(p.name for p in
+                                                     (labelled_views / "images").iterdir())
+    assert sum(e["point_hits"] for e in per_image) == m["point_true_positives"]
+    assert sum(e["false_points"] for e in per_image) == (m["point_detections"]
+                                                         - m["point_true_positives"])
+    assert sum(e["slot_labels"] for e in per_image) == m["slot_labels"]
+    table = _run("evaluate", "detections", labelled_views / "images", labelled_views / "labels")
+    assert table.exit_code == 0 and "images_with_point_errors" in table.output
 
 
 def test_evaluate_detections_reads_ps2_l_directions_in_the_separator_convention():

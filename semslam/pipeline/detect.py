@@ -234,8 +234,9 @@ def evaluate_detection_folder(
     Returns:
         ``point_precision``, ``point_recall``, ``slot_precision``, ``slot_recall``,
         ``shape_accuracy``, the pooled counts (``images`` among them), the median
-        milliseconds per stage, the images without labels and ``labels_redirected``
-        (labelled points whose direction the convention changed).
+        milliseconds per stage, the images without labels, ``labels_redirected``
+        (labelled points whose direction the convention changed) and ``per_image``: each
+        image's labels, hits and false detections, points and slots (which views fail).
 
     Raises:
         FormatError: a folder is missing, holds no labelled image, or a file is broken.
@@ -252,6 +253,7 @@ def evaluate_detection_folder(
         raise FormatError(f"{images_dir}: no image with a label file in {labels_dir}")
     perception = perception or TopviewPerception(lines=False)
     total = DetectionCounts()
+    per_image: list[dict[str, Any]] = []
     timings: dict[str, list[float]] = {}
     redirected = 0
     for k, path in enumerate(labelled):
@@ -266,7 +268,7 @@ def evaluate_detection_folder(
         det = within_image(perception.detect(into_detector_frame(image, frame, perception.spec)),
                            frame)
         points = np.array([p.uv for p in det.points], float).reshape(-1, 2)
-        total += score_image(
+        counts = score_image(
             points,
             np.array([p.direction for p in det.points], float),
             np.array([0 if str(p.shape) == "T" else 1 for p in det.points], int),
@@ -277,6 +279,16 @@ def evaluate_detection_folder(
             labels.shapes,
             labels.slots,
         )
+        total += counts
+        per_image.append({
+            "image": path.name,
+            "point_labels": counts.point_labels,
+            "point_hits": counts.point_true_positives,
+            "false_points": counts.point_detections - counts.point_true_positives,
+            "slot_labels": counts.slot_labels,
+            "slot_hits": counts.slot_true_positives,
+            "false_slots": counts.slot_detections - counts.slot_true_positives,
+        })
         for stage, ms in det.timings_ms.items():
             timings.setdefault(stage, []).append(ms)
         if progress is not None:
@@ -288,6 +300,7 @@ def evaluate_detection_folder(
         "median_ms": {k: round(statistics.median(v), 3) for k, v in timings.items()},
         "unlabelled_images": len(images) - len(labelled),
         "labels_redirected": redirected,
+        "per_image": per_image,
     }
 
 
