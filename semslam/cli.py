@@ -509,11 +509,8 @@ def evaluate_detections(
                                             px_per_m=px_per_m)
     except (SemslamError, OSError) as e:
         _fail(e)
-    if not json_output:  # the table: how many views have a missed or false point (--json: which)
-        per_image = metrics.pop("per_image")
-        metrics["images_with_point_errors"] = sum(
-            e["point_hits"] < e["point_labels"] or e["false_points"] > 0 for e in per_image
-        )
+    if not json_output:  # the table counts the views with point errors; --json lists them
+        metrics.pop("per_image")
     print_metrics("detection evaluation", metrics, json_output)
 
 

@@ -149,6 +149,8 @@ def test_evaluate_detections_scores_labelled_views(labelled_views):
     assert sum(e["false_points"] for e in per_image) == (m["point_detections"]
                                                          - m["point_true_positives"])
     assert sum(e["slot_labels"] for e in per_image) == m["slot_labels"]
+    assert m["images_with_point_errors"] == sum(
+        e["point_hits"] < e["point_labels"] or e["false_points"] > 0 for e in per_image)
     table = _run("evaluate", "detections", labelled_views / "images", labelled_views / "labels")
     assert table.exit_code == 0 and "images_with_point_errors" in table.output
 

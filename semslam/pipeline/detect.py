@@ -174,7 +174,7 @@ def detect_files(
         PerceptionError: a model is missing or broken, an image has the wrong type, or it
             covers more ground than the detectors' view.
     """
-    images = [path for given in images for path in image_files(given)]
+    images = [file for given in images for file in image_files(given)]
     if overlay_dir is not None:
         stems: dict[str, str] = {}
         for path in images:
@@ -235,8 +235,9 @@ def evaluate_detection_folder(
         ``point_precision``, ``point_recall``, ``slot_precision``, ``slot_recall``,
         ``shape_accuracy``, the pooled counts (``images`` among them), the median
         milliseconds per stage, the images without labels, ``labels_redirected``
-        (labelled points whose direction the convention changed) and ``per_image``: each
-        image's labels, hits and false detections, points and slots (which views fail).
+        (labelled points whose direction the convention changed), ``per_image``: each
+        image's labels, hits and false detections, points and slots (which views fail), and
+        ``images_with_point_errors``: how many of them miss a point or find a false one.
 
     Raises:
         FormatError: a folder is missing, holds no labelled image, or a file is broken.
@@ -300,6 +301,9 @@ def evaluate_detection_folder(
         "median_ms": {k: round(statistics.median(v), 3) for k, v in timings.items()},
         "unlabelled_images": len(images) - len(labelled),
         "labels_redirected": redirected,
+        "images_with_point_errors": sum(
+            e["point_hits"] < e["point_labels"] or e["false_points"] > 0 for e in per_image
+        ),
         "per_image": per_image,
     }
 

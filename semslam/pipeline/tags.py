@@ -150,7 +150,8 @@ def tags_in_images(
         detector=DetectorSettings(quad_decimate=float(decimate)),
     )
     out = []
-    for path in [path for given in images for path in image_files(given)]:
+    files = [file for given in images for file in image_files(given)]
+    for path in files:
         gray = read_image(path, grey=True)
         camera = make_camera(intrinsics, distortion, fisheye, (gray.shape[1], gray.shape[0]))
         try:
