@@ -26,6 +26,7 @@ on worlds some of whose separators cross the entrance line (``--cross-share``)::
         --init-onnx models/marking_points.onnx --out /tmp/marking_points.onnx
 
 ``--arch separable`` trains the smaller network of :data:`ARCHITECTURES` instead.
+``--input 384`` trains one that reads 384 px views (a 24 x 24 grid) instead of 256 px.
 
 torch is needed here only; the package runs the exported model with onnxruntime.
 """
@@ -46,8 +47,8 @@ import cv2
 import numpy as np
 from train_point_verifier import half_plane, pavement, seam  # tools/: the script's own dir
 
-INPUT = 256  # network input side, px
-GRID = 16  # output cells per side
+INPUT = 256  # network input side, px (``--input``: :func:`set_input_size`)
+GRID = 16  # output cells per side: the network's stride is 16
 SRC = 600  # ps2.0 top-view side, px
 
 
@@ -74,16 +75,16 @@ def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0
     return None
 
 
-def _render_shard(args: tuple[list[int], int, int, str, bool, float, float]) -> str:
+def _render_shard(args: tuple[list[int], int, int, str, bool, float, float, int]) -> str:
     from semslam.simulation.topview_samples import sample_topviews
 
-    seeds, per_world, seed, path, vary, cross, faint = args
+    seeds, per_world, seed, path, vary, cross, faint, side = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
     for s in sample_topviews(seeds, per_world, seed, paint=paint_variation(vary, cross, faint)):
         a = s.annotation
-        images.append(cv2.resize(s.image, (INPUT, INPUT), interpolation=cv2.INTER_AREA))
+        images.append(cv2.resize(s.image, (side, side), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
         dirs.append(np.asarray(a.directions, np.float32).reshape(-1))
         shapes.append(np.asarray(a.shapes, np.int8).reshape(-1))
@@ -121,7 +122,7 @@ def render_dataset(
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
         jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
-                     cross_share, faint_share))
+                     cross_share, faint_share, INPUT))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -172,7 +173,25 @@ def _labels_at_input(data: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]
 # ----------------------------------------------------------------------------- augmentation
 
 
-_ROWS, _COLS = np.mgrid[0:INPUT, 0:INPUT].astype(np.float32) - np.float32((INPUT - 1) / 2)
+def _centred_grid(side: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column offsets from the middle of a ``side`` px view, float32."""
+    rows, cols = np.mgrid[0:side, 0:side].astype(np.float32) - np.float32((side - 1) / 2)
+    return rows, cols
+
+
+_ROWS, _COLS = _centred_grid(INPUT)
+
+
+def set_input_size(side: int) -> None:
+    """Train and export a network reading ``side`` px views (a multiple of 16; 256 shipped).
+
+    The grid has ``side / 16`` cells per side; the augmentation's shift and blur scale with
+    the side, so they stay the same in metres."""
+    global INPUT, GRID, _ROWS, _COLS
+    if side < 64 or side % 16:
+        raise SystemExit(f"--input {side}: expected a multiple of 16, at least 64")
+    INPUT, GRID = side, side // 16
+    _ROWS, _COLS = _centred_grid(side)
 
 
 def _half_plane(rng: np.random.Generator) -> np.ndarray:
@@ -225,7 +244,7 @@ def augment(
     if rng.random() < 0.5:  # mirror u before rotating
         F = np.array([[-1.0, 0.0, n - 1.0], [0.0, 1.0, 0.0], [0, 0, 1]])
         A = A @ F
-    A[:, 2] += rng.uniform(-8, 8, size=2)
+    A[:, 2] += rng.uniform(-8, 8, size=2) * (n / 256)
     img = cv2.warpAffine(
         image, A, (n, n), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
     )
@@ -265,7 +284,7 @@ def _photometric(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         f[:] = f.mean(axis=2, keepdims=True)
     gamma = rng.uniform(0.7, 1.4) if rng.random() < 0.5 else 1.0
     if rng.random() < 0.3:
-        s = rng.uniform(0.3, 1.3)
+        s = rng.uniform(0.3, 1.3) * (INPUT / 256)
         f = cv2.GaussianBlur(f, (0, 0), s)
     if rng.random() < 0.5:
         f += rng.standard_normal(f.shape, dtype=np.float32) * np.float32(rng.uniform(1, 10))
@@ -699,6 +718,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--arch", choices=ARCHITECTURES, default="conv",
                    help="grid network (ARCHITECTURES)")
+    p.add_argument("--input", type=int, default=256,
+                   help="network input side, px (a multiple of 16; set_input_size)")
     p.add_argument("--eval-only", action="store_true", help="evaluate --out, do not train")
     p.add_argument("--fp32", action="store_true",
                    help="float32 convolutions (default: bf16 autocast and channels last "
@@ -709,6 +730,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scene-augment", action="store_true",
                    help="also paving joints, hard shadows and stitching seams (scene_augment)")
     args = p.parse_args(argv)
+    set_input_size(args.input)
     if not args.eval_only:
         train(args)
     lo, hi = (int(v) for v in args.eval_worlds.split(":"))
