@@ -69,11 +69,23 @@ def _check_writable_folder(folder: Path, option: str, text: str) -> None:
     os.unlink(probe)
 
 
+def _refuse_drive_files(drive: Path, outputs: list[Path], text: str) -> None:
+    """One line if an output would replace a file of the input drive folder."""
+    from semslam.io.drive import is_drive_file
+
+    for path in outputs:
+        if is_drive_file(drive, path):
+            raise SemslamError(f"-o {text}: would replace {path}, a file of the drive {drive}")
+
+
 def _output_file(text: str, option: str = "-o") -> Path:
     """Before any work: ``text`` names a file that can be written, or a one-line error."""
     path = _output_path(text, option)
     if path.is_dir():
         raise SemslamError(f"{option} {text}: is a folder, not a file")
+    if os.path.exists(path) and not path.is_file():
+        raise SemslamError(f"{option} {text}: not a regular file (a device, pipe or socket); "
+                           "semslam writes regular files only")
     _check_writable_folder(path.parent, option, text)
     return path
 
@@ -224,6 +236,7 @@ def map_command(
         for sibling in sibling_paths(out):
             if sibling.is_dir():
                 raise SemslamError(f"-o {output}: {sibling}, written beside the map, is a folder")
+        _refuse_drive_files(drive, [out, *sibling_paths(out)], output)
         cfg = with_overrides(
             load_config(config), mapping={"optimizer": optimizer, "robust": robust}
         )
@@ -267,6 +280,7 @@ def localize(
                                "name the trajectory .tum")
         if track.is_dir():
             raise SemslamError(f"-o {output}: {track} (the per-frame track) is a folder")
+        _refuse_drive_files(drive, [out, track], output)
         if map_path.resolve() in (out.resolve(), track.resolve()):
             raise SemslamError(f"-o {output}: would replace the map {map_path} it localizes "
                                "against")

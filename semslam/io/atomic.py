@@ -48,6 +48,10 @@ def atomic_group() -> Iterator[None]:
         _remove(tmp for tmp, _ in pending)
         raise IsADirectoryError(errno.EISDIR, "is a folder, cannot write a file there",
                                 str(folders[0]))
+    special = [target for _, target in pending if _special(target)]
+    if special:
+        _remove(tmp for tmp, _ in pending)
+        raise _special_error(special[0])
     for k, (tmp, target) in enumerate(pending):
         try:
             os.replace(tmp, target)
@@ -56,6 +60,17 @@ def atomic_group() -> Iterator[None]:
             raise
     for folder in {target.parent for _, target in pending}:
         _fsync_folder(folder)
+
+
+def _special(target: Path) -> bool:
+    """Whether ``target`` exists as neither a file nor a folder (a device, pipe or socket),
+    which a rename would replace with a plain file (as root even ``/dev/null``)."""
+    return os.path.exists(target) and not (target.is_file() or target.is_dir())
+
+
+def _special_error(target: Path) -> OSError:
+    return OSError(errno.EINVAL, "not a regular file (a device, pipe or socket); semslam "
+                   "writes regular files only", str(target))
 
 
 def _remove(paths) -> None:
@@ -75,6 +90,8 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         OSError: the folder or file cannot be written (the target is unchanged).
     """
     target = Path(path)
+    if _special(target):
+        raise _special_error(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     # O_EXCL: never clobber a stranger's file; mode 0o666 so the umask applies

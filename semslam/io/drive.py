@@ -52,6 +52,7 @@ __all__ = [
     "FrameIndex",
     "Odometry",
     "observations_file",
+    "is_drive_file",
     "read_drive_info",
     "read_frames",
     "read_odometry",
@@ -68,6 +69,23 @@ GROUNDTRUTH_TUM = "groundtruth.tum"
 WORLD_JSON = "world.json"
 OBSERVATIONS_DIR = "observations"
 REQUIRED_FILES = (DRIVE_JSON, RIG_JSON, ODOMETRY_CSV, FRAMES_CSV)
+OWN_FILES = (*REQUIRED_FILES, GROUNDTRUTH_TUM, WORLD_JSON, "config.json", "vector_map.json")
+"""The top-level files the commands that write drive folders (``simulate``, ``import``) put
+there."""
+
+
+def is_drive_file(folder: str | os.PathLike[str], path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is an existing file of the drive folder ``folder``: one of its
+    :data:`OWN_FILES` or anything in its subfolders (observations, images, labels), which no
+    command may write over."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return False
+    try:
+        relative = path.resolve().relative_to(Path(folder).resolve())
+    except ValueError:
+        return False
+    return len(relative.parts) > 1 or relative.name in OWN_FILES
 
 
 def observations_file(folder: str | os.PathLike[str], name: str) -> Path:

@@ -317,3 +317,16 @@ def test_drive_broken_parts_raise_their_errors(drive_folder: Path) -> None:
         drive.groundtruth()
     with pytest.raises(DriveError, match=r"odometry\.csv line 3: time goes backwards"):
         drive.odometry()
+
+
+def test_a_drive_s_own_files_are_known_and_new_files_are_not(tmp_path):
+    from semslam.io.drive import is_drive_file
+
+    (tmp_path / "observations").mkdir()
+    for name in ("odometry.csv", "observations/noisy.jsonl", "map.json"):
+        (tmp_path / name).write_text("x")
+    assert is_drive_file(tmp_path, tmp_path / "odometry.csv")
+    assert is_drive_file(tmp_path, tmp_path / "observations" / "noisy.jsonl")
+    assert not is_drive_file(tmp_path, tmp_path / "map.json")  # a map written there before
+    assert not is_drive_file(tmp_path, tmp_path / "world.json")  # not there
+    assert not is_drive_file(tmp_path / "observations", tmp_path / "odometry.csv")
