@@ -17,6 +17,7 @@ import typer
 
 from semslam import __version__
 from semslam.errors import SemslamError
+from semslam.io.atomic import SPECIAL_FILE_MESSAGE, is_special_file
 
 app = typer.Typer(
     name="semslam",
@@ -83,9 +84,8 @@ def _output_file(text: str, option: str = "-o") -> Path:
     path = _output_path(text, option)
     if path.is_dir():
         raise SemslamError(f"{option} {text}: is a folder, not a file")
-    if os.path.exists(path) and not path.is_file():
-        raise SemslamError(f"{option} {text}: not a regular file (a device, pipe or socket); "
-                           "semslam writes regular files only")
+    if is_special_file(path):  # refused by the atomic write too, but only after the work
+        raise SemslamError(f"{option} {text}: {SPECIAL_FILE_MESSAGE}")
     _check_writable_folder(path.parent, option, text)
     return path
 

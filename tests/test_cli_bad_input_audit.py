@@ -375,3 +375,21 @@ def test_usage_errors_are_one_line_through_the_console_entry(args, message):
     assert proc.returncode == 2
     assert proc.stderr.startswith(message) and len(proc.stderr.strip().splitlines()) == 1
     assert "Traceback" not in proc.stderr and proc.stdout == ""
+
+
+def test_map_and_localize_refuse_to_write_over_a_file_of_their_drive(small_drive, tmp_path):
+    odometry = small_drive / "odometry.csv"
+    before = odometry.read_bytes()
+    _fails(_run("map", small_drive, "-o", odometry, "--no-progress"),
+           "would replace", "a file of the drive")
+    _fails(_run("localize", small_drive, "--map", small_drive / "world.json",
+                "-o", small_drive / "groundtruth.tum", "--no-progress"),
+           "would replace", "a file of the drive")
+    assert odometry.read_bytes() == before
+
+
+def test_an_output_that_is_a_pipe_is_refused_and_left_a_pipe(small_drive, tmp_path):
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    _fails(_run("map", small_drive, "-o", fifo, "--no-progress"), "not a regular file")
+    assert fifo.exists() and not fifo.is_file()

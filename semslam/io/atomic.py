@@ -48,7 +48,7 @@ def atomic_group() -> Iterator[None]:
         _remove(tmp for tmp, _ in pending)
         raise IsADirectoryError(errno.EISDIR, "is a folder, cannot write a file there",
                                 str(folders[0]))
-    special = [target for _, target in pending if _special(target)]
+    special = [target for _, target in pending if is_special_file(target)]
     if special:
         _remove(tmp for tmp, _ in pending)
         raise _special_error(special[0])
@@ -62,15 +62,20 @@ def atomic_group() -> Iterator[None]:
         _fsync_folder(folder)
 
 
-def _special(target: Path) -> bool:
+def is_special_file(target: str | os.PathLike[str]) -> bool:
     """Whether ``target`` exists as neither a file nor a folder (a device, pipe or socket),
     which a rename would replace with a plain file (as root even ``/dev/null``)."""
-    return os.path.exists(target) and not (target.is_file() or target.is_dir())
+    return os.path.exists(target) and not (os.path.isfile(target) or os.path.isdir(target))
+
+
+SPECIAL_FILE_MESSAGE = (
+    "not a regular file (a device, pipe or socket); semslam writes regular files only"
+)
+"""Why :func:`is_special_file` targets are refused."""
 
 
 def _special_error(target: Path) -> OSError:
-    return OSError(errno.EINVAL, "not a regular file (a device, pipe or socket); semslam "
-                   "writes regular files only", str(target))
+    return OSError(errno.EINVAL, SPECIAL_FILE_MESSAGE, str(target))
 
 
 def _remove(paths) -> None:
@@ -90,7 +95,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         OSError: the folder or file cannot be written (the target is unchanged).
     """
     target = Path(path)
-    if _special(target):
+    if is_special_file(target):
         raise _special_error(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")

@@ -90,13 +90,7 @@ def test_a_group_with_a_folder_for_a_target_replaces_none(tmp_path: Path) -> Non
     assert a.read_text() == "old a" and sorted(os.listdir(tmp_path)) == ["a.txt", "b.txt"]
 
 
-def test_a_pipe_is_never_replaced_by_a_file(tmp_path):
-    import os
-
-    import pytest
-
-    from semslam.io.atomic import atomic_write_bytes
-
+def test_a_pipe_is_never_replaced_by_a_file(tmp_path: Path) -> None:
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     with pytest.raises(OSError, match="not a regular file"):

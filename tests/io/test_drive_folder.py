@@ -22,6 +22,7 @@ from semslam.io import (
     write_frames,
     write_odometry,
 )
+from semslam.io.drive import is_drive_file
 
 # --------------------------------------------------------------------------- odometry.csv
 
@@ -319,9 +320,7 @@ def test_drive_broken_parts_raise_their_errors(drive_folder: Path) -> None:
         drive.odometry()
 
 
-def test_a_drive_s_own_files_are_known_and_new_files_are_not(tmp_path):
-    from semslam.io.drive import is_drive_file
-
+def test_a_drive_s_own_files_are_known_and_new_files_are_not(tmp_path: Path) -> None:
     (tmp_path / "observations").mkdir()
     for name in ("odometry.csv", "observations/noisy.jsonl", "map.json"):
         (tmp_path / name).write_text("x")
