@@ -34,6 +34,12 @@ sigmas, gates and rates; beyond a thousand a file is broken, and the filters' sq
 gates would overflow or admit every candidate. Integer settings (counts) are not bounded."""
 
 
+MAX_GATE = 10.0
+"""Largest association gate, m. Four slot widths: a wider gate makes every landmark in view a
+candidate for every detection, which costs minutes (a gate of 1000 m on `small`: > 60 s
+against 3.5 s) and associates nothing better."""
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -75,7 +81,9 @@ class ObservationNoiseConfig(_Section):
     tag_yaw_sigma_deg: float = Field(3.0, ge=0, description="PnP rotation noise")
     slot_miss_rate: float = Field(0.2, ge=0, le=1)
     slot_false_rate: float = Field(
-        0.05, ge=0, lt=1, description="expected fraction of slot detections that are false"
+        0.05, ge=0, le=0.9,
+        description="expected fraction of slot detections that are false (at most 0.9: nine "
+        "false for every true one; near 1 the simulator would draw millions)",
     )
     slot_corner_sigma: float = Field(0.05, ge=0, description="corner noise per axis, m")
     slot_exact_sigma: float = Field(0.01, gt=0, description="corner sigma declared by exact obs")
@@ -87,7 +95,7 @@ class ObservationNoiseConfig(_Section):
     detection_confidence_range: tuple[float, float] = (0.6, 1.0)
     marking_endpoint_sigma: float = Field(0.03, ge=0, description="end-point noise per axis, m")
     marking_miss_rate: float = Field(0.1, ge=0, le=1)
-    marking_false_rate: float = Field(0.1, ge=0, lt=1)
+    marking_false_rate: float = Field(0.1, ge=0, le=0.9, description="as slot_false_rate")
     marking_min_length: float = Field(0.4, gt=0, description="shortest visible segment, m")
 
     @field_validator("label_confidence_range", "detection_confidence_range", mode="after")
@@ -112,7 +120,7 @@ class DriveConfig(_Section):
         50.0, gt=0, le=1000, description="wheel speed + gyro samples, Hz (at most 1000)"
     )
     frame_rate: float = Field(
-        10.0, gt=0, le=100, description="camera frames and observations, Hz (at most 100)"
+        10.0, ge=0.1, le=100, description="camera frames and observations, Hz (0.1 to 100)"
     )
     max_duration: float | None = Field(
         None, gt=0, description="stop the drive after this many seconds (None: whole route)"
@@ -208,9 +216,11 @@ class MappingConfig(_Section):
         0.5, ge=0, le=1, description="label confidence from which the ID proposes the slot"
     )
     association_gate: float = Field(
-        1.0, gt=0, description="mean corner distance for a geometric candidate, m"
+        1.0, gt=0, le=MAX_GATE, description="mean corner distance for a geometric candidate, m"
     )
-    id_gate: float = Field(2.0, gt=0, description="mean corner distance for an ID candidate, m")
+    id_gate: float = Field(
+        2.0, gt=0, le=MAX_GATE, description="mean corner distance for an ID candidate, m"
+    )
     max_candidates: int = Field(3, ge=1)
     fuse_frames_max: int = Field(
         3, ge=1, description="detections of one slot (keyframe + frames before it) fused "
@@ -220,7 +230,8 @@ class MappingConfig(_Section):
         0.3, gt=0, description="m: every corner this near the keyframe detection's to fuse"
     )
     label_vote_gate: float = Field(
-        0.4, gt=0, description="m: a slot read between keyframes votes for the landmark this near"
+        0.4, gt=0, le=MAX_GATE,
+        description="m: a slot read between keyframes votes for the landmark this near",
     )
     loop_closure_radius: float = Field(
         0.0, ge=0, description="m: a confident ID's landmark beyond the ID gate and within "
@@ -252,9 +263,11 @@ class MappingConfig(_Section):
     marking_min_confidence: float = Field(0.3, ge=0, le=1)
     marking_angle_tolerance_deg: float = Field(5.0, gt=0, le=30)
     marking_distance_gate: float = Field(
-        0.2, gt=0, description="m: both end points this near a line to belong to it"
+        0.2, gt=0, le=MAX_GATE, description="m: both end points this near a line to belong to it"
     )
-    marking_gap: float = Field(1.0, ge=0, description="m: a detection may extend a line by this")
+    marking_gap: float = Field(
+        1.0, ge=0, le=2 * MAX_GATE, description="m: a detection may extend a line by this"
+    )
     marking_min_support: int = Field(
         5, ge=1, description="detections before a line joins the graph (and the map)"
     )

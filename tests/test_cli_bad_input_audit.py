@@ -279,6 +279,15 @@ def test_detect_refuses_two_images_that_would_write_one_overlay(tmp_path):
     assert not (tmp_path / "ov").exists()
 
 
+def test_detect_refuses_an_overlay_folder_that_holds_the_images(tmp_path):
+    image = tmp_path / "x.png"
+    cv2.imwrite(str(image), np.zeros((600, 600, 3), np.uint8))
+    before = image.read_bytes()
+    result = _run("detect", tmp_path, "--overlay", tmp_path, "--no-lines")
+    _fails(result, "the overlay folder holds the input image", str(image))
+    assert image.read_bytes() == before
+
+
 def test_topview_perception_reads_slots_and_ids_on_its_own_grid():
     from semslam.perception.topview_perception import TopviewPerception
     from semslam.rig import TopviewSpec
@@ -393,3 +402,23 @@ def test_an_output_that_is_a_pipe_is_refused_and_left_a_pipe(small_drive, tmp_pa
     os.mkfifo(fifo)
     _fails(_run("map", small_drive, "-o", fifo, "--no-progress"), "not a regular file")
     assert fifo.exists() and not fifo.is_file()
+
+
+def test_map_reports_an_indeterminate_graph_in_one_line(small_drive, tmp_path):
+    """A marking sigma of 1e-300 makes gtsam's system indeterminate; iSAM2 finds out only
+    when an estimate is read, which used to escape as gtsam's ten-line RuntimeError."""
+    config = tmp_path / "c.json"
+    config.write_text('{"mapping": {"marking_sigma": 1e-300}}')
+    out = tmp_path / "m.json"
+    result = _run("map", small_drive, "-o", out, "--config", config, "--no-progress")
+    _fails(result, "the factor graph could not be solved", "Indeterminate")
+    assert not out.exists()
+
+
+def test_simulate_refuses_a_frame_rate_that_leaves_no_frames(tmp_path):
+    config = tmp_path / "c.json"
+    config.write_text('{"simulation": {"drive": {"frame_rate": 1e-20}}}')
+    result = _run("simulate", tmp_path / "d", "--preset", "small", "--no-images",
+                  "--config", config, "--no-progress")
+    _fails(result, "simulation.drive.frame_rate", "0.1")
+    assert not (tmp_path / "d").exists()

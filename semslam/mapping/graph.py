@@ -25,7 +25,8 @@ the container factors never need their first-order shift.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 
 import gtsam
 import numpy as np
@@ -100,12 +101,10 @@ class Graph:
         new = list(range(self._in_isam, self.factors.size()))
         self._theta.insert(self._new_values)
         linear = gtsam.NonlinearFactorGraph()
-        try:
+        with _one_line_errors():
             for i in again + new:
                 linear.add(self._linearized(i))
             result = self.isam.update(linear, self._new_values, [self._slot[i] for i in again])
-        except RuntimeError as e:  # gtsam's indeterminate system: say so in one line
-            raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
         self.last_result = result
         slots = list(result.getNewFactorsIndices())
         for i, slot in zip(again, slots[: len(again)], strict=True):
@@ -145,7 +144,8 @@ class Graph:
             return self._batch
         if self._in_isam < self.factors.size() or self._new_values.size():
             self.update()
-        return self.isam.calculateEstimate()
+        with _one_line_errors():
+            return self.isam.calculateEstimate()
 
     def optimize_batch(self, max_iterations: int = 20, relative_tolerance: float = 1e-5) -> int:
         """Levenberg-Marquardt over all factors from iSAM2's estimate; returns iterations.
@@ -155,12 +155,10 @@ class Graph:
         own Values, which pybind11 copies for every call (see the module docstring): ~15x
         longer per iteration on `garage` (5 s against 0.5 s).
         """
-        try:
+        with _one_line_errors():
             values, iterations = levenberg_marquardt(
                 self.factors, self.estimate, max_iterations, relative_tolerance, self._dims
             )
-        except RuntimeError as e:
-            raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
         self._batch = values
         return iterations
 
@@ -174,7 +172,8 @@ class Graph:
         elif self._pending(key):
             p = self._new_values.atPose2(key)
         else:
-            p = self.isam.calculateEstimatePose2(key)
+            with _one_line_errors():
+                p = self.isam.calculateEstimatePose2(key)
         return np.array([p.x(), p.y(), p.theta()])
 
     def point(self, key: int) -> FloatArray:
@@ -182,14 +181,16 @@ class Graph:
             return np.asarray(self._batch.atPoint2(key), dtype=float)
         if self._pending(key):
             return np.asarray(self._new_values.atPoint2(key), dtype=float)
-        return np.asarray(self.isam.calculateEstimatePoint2(key), dtype=float)
+        with _one_line_errors():
+            return np.asarray(self.isam.calculateEstimatePoint2(key), dtype=float)
 
     def vector(self, key: int) -> FloatArray:
         if self._batch is not None:
             return np.asarray(self._batch.atVector(key), dtype=float)
         if self._pending(key):
             return np.asarray(self._new_values.atVector(key), dtype=float)
-        return np.asarray(self.isam.calculateEstimateVector(key), dtype=float)
+        with _one_line_errors():
+            return np.asarray(self.isam.calculateEstimateVector(key), dtype=float)
 
     def marginals(self) -> gtsam.Marginals | gtsam.GaussianBayesTree | None:
         """Marginal covariances at the current estimate: an object with
@@ -241,6 +242,16 @@ class Graph:
         A = sp.csr_matrix((vals[inside], (rows[inside], cols[inside])),
                           shape=(int(rows.max()) + 1, n))
         return A, columns
+
+
+@contextmanager
+def _one_line_errors() -> Iterator[None]:
+    """gtsam's RuntimeError (an indeterminate system, ten lines) as a one-line MappingError.
+    iSAM2 may raise it in an update or, solving lazily, when an estimate is read."""
+    try:
+        yield
+    except RuntimeError as e:
+        raise MappingError(f"the factor graph could not be solved: {_first_line(e)}") from None
 
 
 def _first_line(error: Exception) -> str:

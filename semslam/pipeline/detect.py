@@ -157,6 +157,20 @@ def _encode_png(path: Path, image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def _refuse_overlays_among_images(
+    images: Sequence[str | os.PathLike[str]], overlay_dir: str | os.PathLike[str]
+) -> None:
+    """Raise FormatError if the overlay folder holds one of the images: an overlay would
+    replace an input picture, or be read as one the next time the folder is given."""
+    folder = Path(overlay_dir)
+    if not folder.is_dir():
+        return
+    for path in images:
+        if os.path.samefile(Path(path).parent, folder):
+            raise FormatError(f"{overlay_dir}: the overlay folder holds the input image "
+                              f"{path}; give --overlay another folder")
+
+
 def detect_files(
     images: Sequence[str | os.PathLike[str]],
     overlay_dir: str | os.PathLike[str] | None = None,
@@ -169,13 +183,15 @@ def detect_files(
     one's longer side spans the detectors' 10 m).
 
     Raises:
-        FormatError: an image is missing or unreadable, a folder holds no image, or two
-            images would write the same overlay (the same file name in two folders).
+        FormatError: an image is missing or unreadable, a folder holds no image, two
+            images would write the same overlay (the same file name in two folders), or the
+            overlay folder holds an input image.
         PerceptionError: a model is missing or broken, an image has the wrong type, or it
             covers more ground than the detectors' view.
     """
     images = [file for given in images for file in image_files(given)]
     if overlay_dir is not None:
+        _refuse_overlays_among_images(images, overlay_dir)
         stems: dict[str, str] = {}
         for path in images:
             first = stems.setdefault(Path(path).stem, os.fspath(path))

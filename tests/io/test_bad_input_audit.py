@@ -291,7 +291,7 @@ def test_rates_are_bounded(tmp_path: Path, field: str, value: float) -> None:
 @pytest.mark.parametrize(
     ("section", "field", "value"),
     [
-        ("mapping", "id_gate", 1e300),  # every slot in the garage a candidate: > 240 s
+        ("mapping", "pool_radius", 1e300),
         ("mapping", "speed_scale_sigma", 1e300),  # overflowed in the odometry factor
         ("localization", "yaw_acceleration_sigma", 1e300),  # the filter overflowed
         ("localization", "init_position_sigma", 1e12),
@@ -305,6 +305,31 @@ def test_absurd_real_settings_are_refused(
     with pytest.raises(ConfigError) as exc:
         load_config(path)
     _one_line(exc, "c.json", f"{section}.{field}", f"{value:g} is out of range (|value| <= 1000)")
+
+
+@pytest.mark.parametrize(
+    ("section", "field", "value", "words"),
+    [  # each hung for more than a minute on `small` (found by fuzzing)
+        ("mapping", "marking_distance_gate", 1000.0, "less than or equal to 10"),
+        ("mapping", "label_vote_gate", 1000.0, "less than or equal to 10"),
+        ("mapping", "association_gate", 1000.0, "less than or equal to 10"),
+        ("mapping", "id_gate", 1e300, "less than or equal to 10"),  # > 240 s on `garage`
+        ("mapping", "marking_gap", 1000.0, "less than or equal to 20"),
+        ("simulation.observation_noise", "slot_false_rate", 0.999999, "less than or equal to 0.9"),
+        ("simulation.observation_noise", "marking_false_rate", 0.95, "less than or equal to 0.9"),
+    ],
+)
+def test_gates_and_false_rates_are_bounded(
+    tmp_path: Path, section: str, field: str, value: float, words: str
+) -> None:
+    settings: dict = {field: value}
+    for name in reversed(section.split(".")):
+        settings = {name: settings}
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(settings))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", f"{section}.{field}", words)
 
 
 def test_the_defaults_and_large_counts_are_within_range() -> None:
