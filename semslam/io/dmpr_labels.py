@@ -169,6 +169,11 @@ def write_dmpr_labels(
     atomic_write_text(path, json.dumps(document, allow_nan=False) + "\n")
 
 
+_MAX_PIXEL = 1e6
+"""Largest magnitude of a label coordinate, px: ps2.0's views are 600 px; far beyond, the
+file is broken (1e300 overflowed the detection metrics' squared distances)."""
+
+
 def _rows(f: Field) -> list[Field]:
     """The rows of ``marks``/``slots``: a flat list is one row."""
     items = f.items()
@@ -181,7 +186,8 @@ def _mark(f: Field) -> tuple[float, float, float, float, int]:
     items = f.items()
     if len(items) != 5:
         f.fail(f"expected 5 numbers [x, y, x2, y2, shape], got {len(items)}")
-    x, y, x2, y2, shape = (e.number() for e in items)
+    x, y, x2, y2 = (e.number(-_MAX_PIXEL, _MAX_PIXEL) for e in items[:4])
+    shape = items[4].number()
     if shape not in (0.0, 1.0):
         items[4].fail(f"shape must be 0 (T) or 1 (L), got {shape!r}")
     if x == x2 and y == y2:

@@ -401,6 +401,11 @@ def import_garage_bev(
                 mask = class_mask(image, SLOT_LINE_RGB, os.fspath(path))
                 if shape is None:
                     shape = mask.shape
+                    if 2 * crop_rows >= shape[0]:
+                        raise DriveError(
+                            f"{os.fspath(path)}: --crop-rows {crop_rows} blanks all "
+                            f"{shape[0]} rows of the mask (at most {(shape[0] - 1) // 2})"
+                        )
                 elif mask.shape != shape:
                     raise FormatError(
                         f"{os.fspath(path)}: {mask.shape[1]} x {mask.shape[0]} px, the first "

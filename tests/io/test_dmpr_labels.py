@@ -113,6 +113,7 @@ def test_single_mark_and_slot_written_flat(tmp_path: Path) -> None:
             r"slots/1: expected an integer",
         ),
         ({"marks": [[1, "a", 3, 4, 0]]}, r"labels\.json: marks/0/1: expected a number"),
+        ({"marks": [[1, 2, 1e300, 4, 0]]}, r"labels\.json: marks/0/2: must be <= 1000000"),
         (
             {"marks": [[1, 2, 3, 4, 0], [5, 6, 7, 8, 0]], "slots": [1, 2, 1, 1e20]},
             r"labels\.json: slots/3: angle must be 0 to 180 degrees",
