@@ -422,3 +422,13 @@ def test_simulate_refuses_a_frame_rate_that_leaves_no_frames(tmp_path):
                   "--config", config, "--no-progress")
     _fails(result, "simulation.drive.frame_rate", "0.1")
     assert not (tmp_path / "d").exists()
+
+
+def test_map_refuses_observations_cut_at_a_line_boundary(small_drive, tmp_path):
+    drive = tmp_path / "drive"
+    shutil.copytree(small_drive, drive)
+    observations = drive / "observations" / "noisy.jsonl"
+    lines = observations.read_text().splitlines(keepends=True)
+    observations.write_text("".join(lines[: len(lines) // 2]))
+    result = _run("map", drive, "-o", tmp_path / "m.json", "--no-progress")
+    _fails(result, str(observations), "the observations end at", "looks cut short")

@@ -191,8 +191,9 @@ class Drive:
         """The observation set ``observations/<name>.jsonl``.
 
         Raises:
-            DriveError: no such set (the message lists the available ones), or the
-                file holds no observations (nothing to map or localize).
+            DriveError: no such set (the message lists the available ones), the file
+                holds no observations (nothing to map or localize), or they end before the
+                last frame of frames.csv (a file cut at a line boundary).
             FormatError: the file is broken.
         """
         path = observations_file(self.folder, name)
@@ -205,6 +206,12 @@ class Drive:
         frames = read_observations(path)
         if not frames:
             raise DriveError(f"{os.fspath(path)}: no observations (the file has no frames)")
+        last = float(self.frames().t[-1]) if len(self.frames()) else None
+        if last is not None and frames[-1].t < last - 1e-6:
+            raise DriveError(
+                f"{os.fspath(path)}: the observations end at t = {frames[-1].t:.3f} s, "
+                f"{FRAMES_CSV} runs to {last:.3f} s (the file looks cut short)"
+            )
         return frames
 
     def image_path(self, column: str, i: int) -> Path:
