@@ -7,6 +7,7 @@ imports are lazy so ``semslam --help`` stays fast.
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import tempfile
 from enum import StrEnum
@@ -760,10 +761,16 @@ def dump_config(config: ConfigOption = None) -> None:
         _fail(e)
 
 
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
 def run() -> None:
     """The console entry (`semslam`, `python -m semslam`): the commands, with a usage error
     (unknown command or option, missing argument, a value of the wrong type) as one line on
-    stderr, exit code 2, instead of click's framed box."""
+    stderr, exit code 2, instead of click's framed box. SIGTERM exits as SystemExit(143),
+    so a half-written output folder is removed as it is on Ctrl-C."""
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         code = app(prog_name="semslam", standalone_mode=False)
     except KeyboardInterrupt:

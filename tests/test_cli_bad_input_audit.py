@@ -432,3 +432,23 @@ def test_map_refuses_observations_cut_at_a_line_boundary(small_drive, tmp_path):
     observations.write_text("".join(lines[: len(lines) // 2]))
     result = _run("map", drive, "-o", tmp_path / "m.json", "--no-progress")
     _fails(result, str(observations), "the observations end at", "looks cut short")
+
+
+def test_sigterm_removes_the_half_written_drive(tmp_path):
+    """SIGTERM (a job scheduler's stop) cleans up as Ctrl-C does: no `.partial-PID` left."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    process = subprocess.Popen(
+        [sys.executable, "-m", "semslam", "simulate", tmp_path / "d", "--no-progress"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 60
+    while not any(tmp_path.glob(".d.partial-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert any(tmp_path.glob(".d.partial-*")), "the simulation never started writing"
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=60) == 128 + signal.SIGTERM
+    assert list(tmp_path.iterdir()) == []
