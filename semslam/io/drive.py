@@ -206,11 +206,11 @@ class Drive:
         frames = read_observations(path)
         if not frames:
             raise DriveError(f"{os.fspath(path)}: no observations (the file has no frames)")
-        last = float(self.frames().t[-1]) if len(self.frames()) else None
-        if last is not None and frames[-1].t < last - 1e-6:
+        frame_times = self.frames().t
+        if len(frame_times) and frames[-1].t < frame_times[-1] - 1e-6:
             raise DriveError(
                 f"{os.fspath(path)}: the observations end at t = {frames[-1].t:.3f} s, "
-                f"{FRAMES_CSV} runs to {last:.3f} s (the file looks cut short)"
+                f"{FRAMES_CSV} runs to {frame_times[-1]:.3f} s (the file looks cut short)"
             )
         return frames
 

@@ -403,7 +403,7 @@ def import_garage_bev(
                     shape = mask.shape
                     if 2 * crop_rows >= shape[0]:
                         raise DriveError(
-                            f"{os.fspath(path)}: --crop-rows {crop_rows} blanks all "
+                            f"{os.fspath(path)}: crop_rows {crop_rows} blanks all "
                             f"{shape[0]} rows of the mask (at most {(shape[0] - 1) // 2})"
                         )
                 elif mask.shape != shape:
