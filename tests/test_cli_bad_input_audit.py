@@ -158,6 +158,7 @@ def test_plan_tags_refuses_a_route_without_length_and_writes_nothing(small_drive
         ("{}", ["missing field 'proposed_tags'"]),
         ('{"proposed_tags": [{"x": 1, "y": NaN, "yaw": 0}]}', ["proposed_tags/0/y", "NaN"]),
         ('{"proposed_tags": [{"x": 1, "y": 2}]}', ["proposed_tags/0", "'yaw'"]),
+        ('{"proposed_tags": [{"x": 1e300, "y": 2, "yaw": 0}]}', ["proposed_tags/0/x", "<="]),
     ],
 )
 def test_simulate_refuses_a_broken_tag_plan_and_writes_nothing(tmp_path, plan, words):
@@ -422,6 +423,19 @@ def test_simulate_refuses_a_frame_rate_that_leaves_no_frames(tmp_path):
                   "--config", config, "--no-progress")
     _fails(result, "simulation.drive.frame_rate", "0.1")
     assert not (tmp_path / "d").exists()
+
+
+def test_simulate_names_the_drive_not_its_temporary_folder(tmp_path):
+    """Odometry noise so large that the drive's odometry is impossible: the error names
+    the file in the drive folder asked for, not the hidden folder it was written in."""
+    config = tmp_path / "c.json"
+    config.write_text('{"simulation": {"odometry_noise": {"gyro_sigma": 1000}}}')
+    out = tmp_path / "d"
+    result = _run("simulate", out, "--preset", "small", "--no-images",
+                  "--config", config, "--no-progress")
+    line = _fails(result, f"{out.resolve()}/odometry.csv", "yaw_rate", "nothing was written")
+    assert "partial" not in line
+    assert not out.exists() and list(tmp_path.iterdir()) == [config]
 
 
 def test_map_refuses_observations_cut_at_a_line_boundary(small_drive, tmp_path):

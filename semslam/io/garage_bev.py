@@ -232,7 +232,8 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
         DriveError: point.csv or line.csv is missing.
         FormatError: a wrong header, column count or number, a coordinate beyond
             :data:`~semslam.io.map_json.MAX_COORDINATE`, a repeated ID, a line whose end
-            point is not in point.csv; the message names the file and line.
+            point is not in point.csv, a line whose two end points coincide; the message
+            names the file and line.
     """
     root = Path(folder)
     if not (root / POINT_CSV).is_file() and (root / VECTOR_MAP_DIR).is_dir():
@@ -263,6 +264,11 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
             if pid not in points:
                 raise FormatError(f"{where}: {column} {pid} is not in {os.fspath(points_path)}")
             ends.append(points[pid])
+        if ends[0] == ends[1]:
+            raise FormatError(
+                f"{where}: zero-length line (BPID {row['BPID']} and FPID {row['FPID']} are the "
+                "same point)"
+            )
         segments.append((ends[0], ends[1]))
     return np.array(segments, dtype=float).reshape(-1, 2, 2)
 

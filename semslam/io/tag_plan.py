@@ -16,6 +16,7 @@ from semslam.geometry import FloatArray
 from semslam.io._fields import Field
 from semslam.io._json import parse_json
 from semslam.io._text import read_text
+from semslam.io.map_json import MAX_COORDINATE
 
 
 def read_proposed_tags(path: str | os.PathLike[str]) -> FloatArray:
@@ -23,12 +24,18 @@ def read_proposed_tags(path: str | os.PathLike[str]) -> FloatArray:
 
     Raises:
         FormatError: missing file, broken JSON, no ``proposed_tags`` list, or a tag whose
-            x, y or yaw is missing or not a finite number; the message names the field.
+            x, y or yaw is missing, not a finite number or out of range (x, y within
+            :data:`~semslam.io.map_json.MAX_COORDINATE` m as in a map, yaw within 2 pi);
+            the message names the field.
     """
     name = os.fspath(path)
     doc = Field(parse_json(read_text(path, FormatError), name, FormatError), name, FormatError)
     poses = [
-        [tag["x"].number(), tag["y"].number(), tag["yaw"].number(-2 * math.pi, 2 * math.pi)]
+        [
+            tag["x"].number(-MAX_COORDINATE, MAX_COORDINATE),
+            tag["y"].number(-MAX_COORDINATE, MAX_COORDINATE),
+            tag["yaw"].number(-2 * math.pi, 2 * math.pi),
+        ]
         for tag in doc["proposed_tags"].items()
     ]
     return np.array(poses, dtype=float).reshape(-1, 3)

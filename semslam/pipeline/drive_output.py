@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from semslam.errors import SemslamError
@@ -57,4 +59,30 @@ def commit_drive_folder(tmp: Path, out_dir: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-__all__ = ["commit_drive_folder", "prepare_drive_folder"]
+@contextmanager
+def staged_drive_folder(out_dir: Path, error: type[SemslamError]) -> Iterator[Path]:
+    """Yield a temporary folder to write a drive into; on success it becomes ``out_dir``.
+
+    On any exception the temporary folder is removed and nothing at ``out_dir`` changes;
+    a :class:`SemslamError` about a file in the temporary folder is re-worded to name
+    the file's place in ``out_dir`` (the user never sees the temporary name) and to say
+    that nothing was written.
+    """
+    out_dir = Path(out_dir).resolve()
+    tmp = prepare_drive_folder(out_dir, error)
+    try:
+        yield tmp
+    except SemslamError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        message = str(exc)
+        if os.fspath(tmp) in message:
+            message = message.replace(os.fspath(tmp), os.fspath(out_dir))
+            exc.args = (f"{message} (nothing was written)",)
+        raise
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    commit_drive_folder(tmp, out_dir)
+
+
+__all__ = ["commit_drive_folder", "prepare_drive_folder", "staged_drive_folder"]

@@ -59,7 +59,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,7 +68,7 @@ import numpy as np
 from semslam import __version__
 from semslam.errors import DriveError, FormatError
 from semslam.geometry import FloatArray
-from semslam.pipeline.drive_output import commit_drive_folder, prepare_drive_folder
+from semslam.pipeline.drive_output import staged_drive_folder
 from semslam.progress import progress_bar
 
 VECTOR_MAP_JSON = "vector_map.json"
@@ -390,8 +389,7 @@ def import_garage_bev(
     frames: list[FrameObservations] = []
     paths: list[str] = []
     shape = None
-    tmp = prepare_drive_folder(out_dir, DriveError)
-    try:
+    with staged_drive_folder(out_dir, DriveError) as tmp:
         with progress_bar(len(pick), "masks", show_progress) as bar:
             for i in pick:
                 path = rec.mask_paths[i]
@@ -491,10 +489,6 @@ def import_garage_bev(
                 indent=2,
             ) + "\n"
         )
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    commit_drive_folder(tmp, out_dir)
     steps = np.hypot(*np.diff(rec.odometry_poses[:, :2], axis=0).T)
     return ImportSummary(
         folder=out_dir,

@@ -6,7 +6,6 @@ atomically, shows progress and leaves the configuration beside the results.
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +15,7 @@ import numpy as np
 from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import SimulationError
-from semslam.pipeline.drive_output import commit_drive_folder, prepare_drive_folder
+from semslam.pipeline.drive_output import staged_drive_folder
 from semslam.pipeline.workers import process_pool
 from semslam.progress import progress_bar
 
@@ -144,8 +143,7 @@ def simulate(
     from semslam.simulation.scenario import simulate_drive
 
     started = time.perf_counter()
-    tmp = prepare_drive_folder(out_dir, SimulationError)
-    try:
+    with staged_drive_folder(out_dir, SimulationError) as tmp:
         sim = simulate_drive(preset, seed, drive_index, config.simulation, placed_tags)
         rec = sim.record
         save_rig(tmp / "rig.json", sim.rig)
@@ -186,10 +184,6 @@ def simulate(
             ),
         )
         atomic_write_text(tmp / "config.json", config_to_json(config))
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    commit_drive_folder(tmp, out_dir)
     steps = np.linalg.norm(np.diff(sim.frame_poses[:, :2], axis=0), axis=1)
     return SimulationSummary(
         folder=out_dir,

@@ -261,6 +261,7 @@ def test_broken_recording_files(tmp_path: Path, file: str, text: str, message: s
         ("point.csv", "", r"point.csv: empty file"),
         ("line.csv", "LID,BPID,FPID\n1,1,7\n", r"line.csv line 2: FPID 7 is not in"),
         ("line.csv", "LID,BPID,FPID\n", r"line.csv: no data rows"),
+        ("line.csv", "LID,BPID,FPID\n1,2,2\n", r"line.csv line 2: zero-length line"),
     ],
 )
 def test_broken_vector_map(tmp_path: Path, file: str, text: str, message: str) -> None:
