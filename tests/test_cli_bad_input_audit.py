@@ -96,7 +96,8 @@ def test_tags_refuses_tiny_focal_lengths(tmp_path):
 @pytest.mark.parametrize(
     ("options", "words"),
     [  # finite but absurd: the tag-size one crashed while writing the JSON (NaN poses)
-        (("--intrinsics", "600,600,32,32", "--tag-size", "1e300"), ("--tag-size", "up to 100")),
+        (("--intrinsics", "600,600,32,32", "--tag-size", "1e300"), ("--tag-size", "to 100")),
+        (("--intrinsics", "600,600,32,32", "--tag-size", "1e-9"), ("--tag-size", "from 0.001")),
         (("--intrinsics", "1e300,600,32,32", "--tag-size", "0.5"), ("--intrinsics", "1e+06 px")),
         (
             ("--intrinsics", "600,600,32,32", "--tag-size", "0.5", "--distortion", "1e300,0,0,0"),

@@ -59,6 +59,8 @@ Three modes:
     pair and the poses form an odometry chain in id order; otherwise batch
     (mixtures over several pose pairs cannot be played back in time order:
     the benchmark's multimodal hypotheses point at poses not yet driven).
+    When iSAM2 finds the incremental pass indeterminate (round-off on a long,
+    weakly constrained chain), auto falls back to batch.
 
 ``robust="dcs"``
     Dynamic covariance scaling (Agarwal et al. 2013, the closed form of switchable
@@ -327,7 +329,8 @@ def optimize_pose_graph(
             ``"maxmix"`` or ``"dcs"`` (see the module doc).
         schedule: ``"incremental"``, ``"batch"`` or ``"auto"`` (incremental when every mixture
             joins one pose pair and every pose but the first has a plain edge to an earlier
-            pose in id order; batch otherwise). Only used with ``robust="maxmix"``.
+            pose in id order, batch if iSAM2 finds that indeterminate; batch otherwise).
+            Only used with ``robust="maxmix"``.
         gate_probability: confidence of the front end's chi-square gates (innovation test and
             cluster re-check); None turns the front end off (pure max-mixture, played back in
             time order). Used by the incremental schedule, and by ``"dcs"`` to call a closure
@@ -369,20 +372,35 @@ def optimize_pose_graph(
             return _least_squares(problem, max_iterations, start)
         except RuntimeError as exc:
             raise _indeterminate(exc) from None
+    chosen = schedule
     if schedule == "auto":
         single_pair = all(m.single_pair for m in problem.mixtures)
-        schedule = "incremental" if single_pair and _is_chain(problem) else "batch"
-    if schedule == "incremental" and not _is_chain(problem):
+        chosen = "incremental" if single_pair and _is_chain(problem) else "batch"
+    if chosen == "incremental" and not _is_chain(problem):
         raise ValueError(
             "incremental schedule needs every pose but the first to have a plain edge to an "
             "earlier pose (in id order); use schedule='batch'"
         )
-    solver = _Solver(
-        problem, gate_probability, cluster_gap, max_rounds, max_iterations, relinearize_threshold
-    )
+
+    def solve(chosen: str) -> PoseGraphResult:
+        solver = _Solver(
+            problem, gate_probability, cluster_gap, max_rounds, max_iterations,
+            relinearize_threshold,
+        )
+        values = solver.batch() if chosen == "batch" else solver.incremental()
+        return solver.result(values, chosen, start)
+
     try:
-        values = solver.batch() if schedule == "batch" else solver.incremental()
-        return solver.result(values, schedule, start)
+        return solve(chosen)
+    except RuntimeError as exc:
+        error = _indeterminate(exc)
+        if schedule != "auto" or chosen == "batch" or not isinstance(error, MappingError):
+            raise error from None
+    # iSAM2's Cholesky on a long, weakly constrained chain can lose the gauge-free part
+    # to round-off where batch LM's ordering does not (a 20,000-pose chain of unit
+    # information fails near pose 600): the auto schedule falls back to batch.
+    try:
+        return solve("batch")
     except RuntimeError as exc:
         raise _indeterminate(exc) from None
 

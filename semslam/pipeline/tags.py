@@ -38,6 +38,10 @@ from semslam.rig import Camera, CameraModel
 MAX_PIXELS = 1e6
 """Largest focal length or principal-point coordinate accepted, px (beyond: a typo)."""
 
+MIN_TAG_SIZE = 1e-3
+"""Smallest tag edge accepted, metres (a millimetre; below it PnP loses all precision and
+every detection fails silently)."""
+
 MAX_TAG_SIZE = 100.0
 """Largest tag edge accepted, metres."""
 
@@ -132,9 +136,9 @@ def tags_in_images(
         FormatError: an image file is missing or unreadable, or a folder holds none.
         PerceptionError: bad intrinsics, distortion, tag size, family or variant.
     """
-    if not (math.isfinite(tag_size) and 0 < tag_size <= MAX_TAG_SIZE):
+    if not (math.isfinite(tag_size) and MIN_TAG_SIZE <= tag_size <= MAX_TAG_SIZE):
         raise PerceptionError(
-            f"--tag-size must be a positive number of metres up to {MAX_TAG_SIZE:g}, "
+            f"--tag-size must be a number of metres from {MIN_TAG_SIZE:g} to {MAX_TAG_SIZE:g}, "
             f"got {tag_size:g}"
         )
     try:

@@ -307,6 +307,22 @@ def test_a_point_no_edge_observes_stays_where_the_file_holds_it():
         assert res.points.tolist() == [[2.0, 1.0]], schedule
 
 
+def test_auto_falls_back_to_batch_where_isam2_loses_a_long_weak_chain():
+    """A 700-pose chain of unit information: iSAM2's Cholesky finds the incremental pass
+    indeterminate (round-off, near pose 586); batch LM solves it, and auto uses batch."""
+    n = 700
+    g = parse_g2o(
+        "".join(f"VERTEX_SE2 {i} {i} 0 0\n" for i in range(n))
+        + "".join(f"EDGE_SE2 {i} {i + 1} 1 0 0 1 0 0 1 0 1\n" for i in range(n - 1))
+    )
+    with pytest.raises(MappingError, match="indeterminate near variable"):
+        optimize_pose_graph(g, "maxmix", schedule="incremental")
+    res = optimize_pose_graph(g, "maxmix")
+    assert res.schedule == "batch"
+    np.testing.assert_allclose(res.poses[:, 0], np.arange(n), atol=1e-6)
+    np.testing.assert_allclose(res.poses[:, 1:], 0.0, atol=1e-6)
+
+
 def test_bad_arguments():
     g, _ = _world()
     with pytest.raises(ValueError, match="robust"):
