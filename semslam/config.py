@@ -27,6 +27,7 @@ from pydantic import (
 from pydantic_settings import BaseSettings, EnvSettingsSource, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
+from semslam.io._json import first_line, loads
 
 MAX_SETTING = 1e3
 """Largest magnitude of a real-valued setting. Settings are metres, seconds, radians,
@@ -404,7 +405,7 @@ def load_config(path: Path | None = None) -> SemslamConfig:
     data: dict[str, Any] = {}
     if path is not None:
         try:
-            data = json.loads(Path(path).read_text(encoding="utf-8-sig"))
+            data = loads(Path(path).read_text(encoding="utf-8-sig"))
         except FileNotFoundError:
             raise ConfigError(f"{path}: config file not found") from None
         except UnicodeDecodeError:
@@ -413,6 +414,8 @@ def load_config(path: Path | None = None) -> SemslamConfig:
             raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
         except json.JSONDecodeError as e:
             raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
+        except (ValueError, RecursionError) as e:  # a key twice, an integer of 5000 digits
+            raise ConfigError(f"{path}: not valid JSON ({first_line(e)})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: a config file holds one JSON object")
     where = str(path) if path is not None else "configuration"

@@ -2,7 +2,9 @@
 
 Python's ``json`` accepts ``NaN`` and ``Infinity``, which are not JSON;
 :func:`parse_json` keeps them long enough for :func:`find_non_finite` to name
-the field, and every reader then refuses them.
+the field, and every reader then refuses them. It also keeps the last of two
+equal keys in one object without a word; :func:`loads` refuses them (a key
+written twice is an edit gone wrong, and which one counts is a guess).
 """
 
 from __future__ import annotations
@@ -21,10 +23,27 @@ import numpy as np
 from semslam.errors import SemslamError
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise ValueError(f"duplicate key {key!r} in one object")
+            seen.add(key)
+    return obj
+
+
+def loads(text: str) -> Any:
+    """``json.loads`` that refuses an object with a key twice (ValueError naming the key)."""
+    return json.loads(text, object_pairs_hook=_unique_keys)
+
+
 def parse_json(text: str, source: str, error: type[SemslamError]) -> Any:
-    """Parse ``text``; a syntax error becomes ``error`` naming ``source``, line and column."""
+    """Parse ``text``; a syntax error becomes ``error`` naming ``source``, line and column
+    (a key twice in one object, ``error`` naming the key)."""
     try:
-        return json.loads(text)
+        return loads(text)
     except json.JSONDecodeError as exc:
         if not text.strip():
             raise error(f"{source}: empty file, expected JSON") from None

@@ -31,6 +31,7 @@ from semslam.io._fields import Field, check_covariance
 from semslam.io._json import (
     find_non_finite,
     first_line,
+    loads,
     may_hold_non_finite,
     non_finite_message,
 )
@@ -124,7 +125,7 @@ def read_observations(path: str | os.PathLike[str]) -> list[FrameObservations]:
             continue
         where = f"{name} line {lineno}"
         try:
-            document = json.loads(line)
+            document = loads(line)
         except json.JSONDecodeError as exc:
             raise FormatError(f"{where}: not valid JSON at column {exc.colno}: {exc.msg}") from None
         except (ValueError, RecursionError) as exc:

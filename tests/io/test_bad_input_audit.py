@@ -180,8 +180,8 @@ def test_a_poorly_conditioned_information_matrix_is_refused() -> None:
 def test_an_indeterminate_system_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(g2o_module, "MIN_INFORMATION", 0.0)  # let the reader through
     graph = parse_g2o(_CHAIN.format(v="1e-15"), "g.g2o")
-    with pytest.raises(MappingError) as exc:
-        optimize_pose_graph(graph, "maxmix")
+    with pytest.raises(MappingError) as exc:  # iSAM2 (auto would fall back to batch LM)
+        optimize_pose_graph(graph, "maxmix", schedule="incremental")
     _one_line(exc, "indeterminate", "variable 1")
 
 
@@ -411,3 +411,27 @@ def test_the_localizer_refuses_frames_after_the_odometry() -> None:
     with pytest.raises(DriveError) as exc:
         localizer.step(FrameObservations(t=3.0))
     _one_line(exc, "observations reach 3.000 s", "after the odometry")
+
+
+# --------------------------------------------------------------------------- a key twice
+
+
+def test_a_key_twice_in_one_object_is_refused(tmp_path: Path) -> None:
+    """Python's json keeps the last of two equal keys silently; every reader refuses it."""
+    from semslam.io import load_map, read_observations
+
+    path = tmp_path / "map.json"
+    path.write_text('{"version": 1, "version": 1, "slots": [], "tags": [], "markings": []}')
+    with pytest.raises(MapError) as exc:
+        load_map(path)
+    _one_line(exc, str(path), "duplicate key 'version'")
+    path = tmp_path / "obs.jsonl"
+    path.write_text('{"t": 0.0}\n{"t": 1.0, "t": 0.5}\n')
+    with pytest.raises(FormatError) as exc:
+        read_observations(path)
+    _one_line(exc, f"{path} line 2", "duplicate key 't'")
+    path = tmp_path / "config.json"
+    path.write_text('{"mapping": {"keyframe_distance": 1.0, "keyframe_distance": 2.0}}')
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, str(path), "duplicate key 'keyframe_distance'")
