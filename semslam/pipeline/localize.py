@@ -38,6 +38,7 @@ class LocalizeSummary:
 
 MAX_INIT_M = 1e6  # metres: no garage is larger; far beyond it, floats overflow
 MAX_INIT_YAW = 1e3  # radians, before wrapping
+MAX_INIT_FROM_MAP = 1e3  # metres from the map's landmarks: farther, a pose in another frame
 
 
 def parse_init(text: str | None) -> np.ndarray | None:
@@ -59,6 +60,26 @@ def parse_init(text: str | None) -> np.ndarray | None:
     return np.array(values)
 
 
+def check_init_near_map(pose: np.ndarray, semantic_map, map_path: Path) -> None:
+    """Refuse an initial pose more than :data:`MAX_INIT_FROM_MAP` from the box around the
+    map's landmarks (a pose given in another frame; the filter would only coast away from
+    it). A map without landmarks takes any pose."""
+    points = [c for s in semantic_map.slots for c in s.corners]
+    points += [t.mTt[:2] for t in semantic_map.tags]
+    points += [p for m in semantic_map.markings for p in (m.a, m.b)]
+    if not points:
+        return
+    xy = np.asarray(points, dtype=float).reshape(-1, 2)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    distance = float(np.hypot(*np.maximum(np.maximum(lo - pose[:2], pose[:2] - hi), 0.0)))
+    if distance > MAX_INIT_FROM_MAP:
+        raise DriveError(
+            f"--init: {pose[0]:g}, {pose[1]:g} is {distance:.0f} m from the landmarks of "
+            f"{map_path} (x {lo[0]:.1f}..{hi[0]:.1f} m, y {lo[1]:.1f}..{hi[1]:.1f} m); "
+            "give a pose in the map's frame"
+        )
+
+
 def localize_drive(
     drive_folder: Path,
     map_path: Path,
@@ -78,6 +99,8 @@ def localize_drive(
 
     given_init = None if init is None else parse_init(init)  # bad --init: fail before any work
     semantic_map = load_map(map_path)
+    if given_init is not None:
+        check_init_near_map(given_init, semantic_map, map_path)
     drive = Drive.open(drive_folder)
     odometry = drive.odometry()
     frames = load_observations(drive, observations, config, show_progress)
