@@ -28,6 +28,10 @@ MAX_POSITION = 1e6
 MAX_TIME = 1e11
 """Largest ``|t|`` read, seconds (3000 years: nanosecond stamps are refused, not misread)."""
 
+MAX_TILT_DEG = 45.0
+"""Largest roll/pitch tilt read, degrees: garage ramps are under 15; a pose tilted more is a
+trajectory of another axis convention (a camera frame, z forward), whose yaw is nonsense."""
+
 _BOUNDS = {col: (MAX_POSITION, "m") for col in ("x", "y", "z")}  # parse_number's within, unit
 
 
@@ -120,15 +124,27 @@ def read_tum_rows(path: str | os.PathLike[str]) -> tuple[FloatArray, list[int]]:
 
 def read_tum(path: str | os.PathLike[str]) -> tuple[FloatArray, FloatArray]:
     """Read a TUM trajectory; '#' comments and blank lines are skipped; z, roll and pitch
-    are dropped.
+    are dropped (a tilt up to :data:`MAX_TILT_DEG`: a ramp, a body on its springs).
 
     Returns:
         ``(t, poses)``: (N,) times in seconds and (N, 3) poses ``(x, y, yaw)``,
         yaw wrapped to (-pi, pi].
 
     Raises:
-        FormatError: as :func:`read_tum_rows`.
+        FormatError: as :func:`read_tum_rows`, or a pose tilted more than
+            :data:`MAX_TILT_DEG` from level (its yaw would mean nothing).
     """
-    rows, _ = read_tum_rows(path)
+    rows, lines = read_tum_rows(path)
+    q = rows[:, 4:8] / np.linalg.norm(rows[:, 4:8], axis=1, keepdims=True)
+    up = 1.0 - 2.0 * (q[:, 0] ** 2 + q[:, 1] ** 2)  # body z . world z = cos(tilt)
+    tilted = np.nonzero(up < math.cos(math.radians(MAX_TILT_DEG)))[0]
+    if len(tilted):
+        k = int(tilted[0])
+        tilt = math.degrees(math.acos(float(np.clip(up[k], -1.0, 1.0))))
+        raise FormatError(
+            f"{os.fspath(path)} line {lines[k]}: the pose is tilted {tilt:.0f} deg from level "
+            f"(more than {MAX_TILT_DEG:g}); poses here are planar, body z up (a camera-frame "
+            "trajectory, z forward?)"
+        )
     yaw = [quaternion_to_yaw(*q) for q in rows[:, 4:8]]
     return rows[:, 0].copy(), np.column_stack([rows[:, 1], rows[:, 2], yaw])

@@ -58,6 +58,21 @@ def test_a_quaternion_of_any_length_gives_its_yaw(tmp_path: Path) -> None:
     np.testing.assert_allclose(poses[:, 2], np.pi / 2, atol=1e-4)
 
 
+def test_a_tilt_up_to_45_degrees_keeps_its_yaw(tmp_path: Path) -> None:
+    """A car on a ramp: pitch 20 deg and roll 40 deg after a yaw of 1 rad."""
+    path = tmp_path / "ramp.tum"
+    lines = []
+    for i, (pitch, roll) in enumerate([(20.0, 0.0), (0.0, 40.0)]):
+        yaw, p, r = 1.0, math.radians(pitch), math.radians(roll)
+        cy, sy, cp, sp, cr, sr = (f(a / 2) for a in (yaw, p, r) for f in (math.cos, math.sin))
+        q = (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+             cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)  # ZYX Euler
+        lines.append(f"{i} 0 0 0 " + " ".join(f"{v:.9f}" for v in q))
+    path.write_text("\n".join(lines) + "\n")
+    _, poses = read_tum(path)
+    np.testing.assert_allclose(poses[:, 2], 1.0, atol=1e-6)
+
+
 def test_comments_and_blank_lines_are_skipped(tmp_path: Path) -> None:
     path = tmp_path / "traj.tum"
     path.write_text("# header\n\n0 1 2 0 0 0 0 1\n  # late comment\n1 2 3 0 0 0 1 0\n\n")
@@ -89,6 +104,10 @@ def test_comments_and_blank_lines_are_skipped(tmp_path: Path) -> None:
             r"line 1: t 1\.7e\+18 s is out of range \(\|t\| <= 1e\+11 s; TUM times are seconds\)",
         ),
         ("# only a comment\n", r"traj\.tum: no poses"),
+        (  # a camera-frame trajectory (z forward): rotated 90 deg about x
+            "0 1 2 0 0 0 0 1\n1 1 2 0 -0.7071068 0 0 0.7071068\n",
+            r"traj\.tum line 2: the pose is tilted 90 deg from level \(more than 45\)",
+        ),
     ],
 )
 def test_rejects(tmp_path: Path, content: str, message: str) -> None:
