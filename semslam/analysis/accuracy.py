@@ -655,7 +655,8 @@ def predicted_on_grid(
 
     Raises:
         ConfigError: a step that is not a positive finite number, bounds that are not
-            finite, or a grid of more than :data:`MAX_GRID_CELLS` cells (refused before
+            finite, a grid of fewer than 2 cells either way, or of more than
+            :data:`MAX_GRID_CELLS` cells (refused before
             anything is allocated: a tiny step or a far-away landmark or route)."""
     x0, y0, x1, y1 = bounds or geometry.bounds()
     _check_grid(x0, y0, x1, y1, step)
@@ -691,6 +692,12 @@ def _check_grid(x0: float, y0: float, x1: float, y1: float, step: float) -> None
         raise ConfigError(f"accuracy: the grid bounds {(x0, y0, x1, y1)} are not a finite box")
     nx = math.floor((x1 - x0 + 1e-9) / step) + 1
     ny = math.floor((y1 - y0 + 1e-9) / step) + 1
+    if min(nx, ny) < 2:
+        raise ConfigError(
+            f"accuracy: a step of {step:g} m leaves a grid of {nx} x {ny} cells over "
+            f"{x1 - x0:.4g} m x {y1 - y0:.4g} m (at least 2 each way); lower --grid-step "
+            f"to {min(x1 - x0, y1 - y0):.4g} m or less"
+        )
     if nx * ny > MAX_GRID_CELLS:
         raise ConfigError(
             f"accuracy: a grid of {nx * ny:.3g} cells ({nx} x {ny}, {x1 - x0:.4g} m x "

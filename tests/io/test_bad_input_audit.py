@@ -199,6 +199,9 @@ def test_a_huge_accuracy_grid_is_refused_before_allocating() -> None:
     with pytest.raises(ConfigError) as exc:
         predicted_on_grid(geometry, step=1.0, bounds=(0.0, 0.0, 1e6, 20.0))
     _one_line(exc, "1000001 x 21")
+    with pytest.raises(ConfigError) as exc:  # one cell: matplotlib warned, the plot was empty
+        predicted_on_grid(geometry, step=1e9)
+    _one_line(exc, "leaves a grid of 1 x 1 cells", "lower --grid-step")
 
 
 # --------------------------------------------------------------------------- 6, 7: config
