@@ -4,6 +4,8 @@ files of a folder."""
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -36,12 +38,24 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
         raise FormatError(f"{p}: JPEG cut short (no end-of-image marker), {len(data)} bytes")
     image = None
     if data:  # imdecode asserts on an empty buffer
-        image = cv2.imdecode(
-            np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
-        )
+        with _opencv_quiet():  # its own warnings ("can not handle 32-bit samples") before ours
+            image = cv2.imdecode(
+                np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
+            )
     if image is None:
         raise FormatError(f"{p}: not an image OpenCV can read")
     return image
+
+
+@contextmanager
+def _opencv_quiet() -> Iterator[None]:
+    """OpenCV's log at errors only for the duration (it prints warnings to stderr)."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(level)
 
 
 def image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:

@@ -341,8 +341,6 @@ def import_garage_bev(
         DriveError, FormatError: a missing or broken input file (one line naming it), or
             an output folder that exists and holds something other than a drive.
     """
-    import cv2
-
     from semslam.io import (
         DriveInfo,
         FrameIndex,
@@ -362,6 +360,7 @@ def import_garage_bev(
         open_garage_bev,
         read_vector_map,
     )
+    from semslam.io.images import read_image
     from semslam.motion import integrate_odometry
     from semslam.perception.markings import MarkingDetector
     from semslam.rig import Rig, TopviewSpec
@@ -393,9 +392,7 @@ def import_garage_bev(
         with progress_bar(len(pick), "masks", show_progress) as bar:
             for i in pick:
                 path = rec.mask_paths[i]
-                image = cv2.imread(os.fspath(path), cv2.IMREAD_COLOR)
-                if image is None:
-                    raise FormatError(f"{os.fspath(path)}: not a readable image")
+                image = read_image(path)
                 mask = class_mask(image, SLOT_LINE_RGB, os.fspath(path))
                 if shape is None:
                     shape = mask.shape
