@@ -88,7 +88,8 @@ class RecentFrames:
             confidence, reads = 0.0, 0
             if label is not None:  # the best reading of the winner, discounted by dissent
                 best = max(s.label_confidence for s in group if s.label == label)
-                confidence = best * votes[label] / sum(votes.values())
+                total = sum(votes.values())  # 0 when every reading has confidence 0
+                confidence = best * votes[label] / total if total > 0 else 0.0
                 reads = sum(s.label == label for s in group)
             yield replace(
                 group[-1],

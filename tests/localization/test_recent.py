@@ -25,6 +25,15 @@ def test_merged_slot_counts_the_readings_of_its_label():
     assert slot.label_confidence < 0.9  # one dissenting reading discounts it
 
 
+def test_labels_read_with_confidence_zero_merge_to_confidence_zero():
+    recent = RecentFrames(window=2.0)
+    for i in range(4):
+        obs = SlotObservation(SLOT, SlotKind.PERPENDICULAR, "A7", 0.0, 1.0, 0.05)
+        recent.add(np.zeros(3), FrameObservations(0.1 * i, (obs,), (), ()))
+    (slot,) = recent.merged().slots  # it divided by the zero sum of the votes
+    assert slot.label == "A7" and slot.label_confidence == 0.0 and slot.label_reads == 4
+
+
 def test_old_frames_leave_the_window():
     recent = RecentFrames(window=1.0)
     for i in range(30):
