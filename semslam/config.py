@@ -212,6 +212,10 @@ class MappingConfig(_Section):
         (0.002, 2e-5), description="random walk of (scale, bias) from one window to the next"
     )
     tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
+    tag_conflict_distance: float = Field(
+        5.0, gt=0, le=MAX_GATE, description="a sighting placing its tag farther than this from "
+        "the tag's estimate is another tag under the same ID: reported, not used, m"
+    )
     slot_corner_sigma_min: float = Field(0.02, gt=0, description="floor on corner sigma, m")
     id_confidence_high: float = Field(
         0.5, ge=0, le=1, description="label confidence from which the ID proposes the slot"

@@ -76,6 +76,12 @@ def print_map_summary(summary: MapSummary, console: Console | None = None) -> No
         ("driving / mapping time", f"{summary.driving_s:.1f} s / {summary.mapping_s:.1f} s"),
         ("faster than driving", f"{stats.get('speedup', '-')}x"),
     ]
+    refused = stats.get("tag_conflicts", 0) + stats.get("tag_size_mismatches", 0)
+    if refused:  # an ID at two places, or of another size: the sightings left out
+        rows.append((
+            "tag sightings not used (another place / size under an ID)",
+            f"{stats.get('tag_conflicts', 0)} / {stats.get('tag_size_mismatches', 0)}",
+        ))
     if stats.get("marginal_fallbacks"):  # gtsam refused their covariance: a rough one instead
         rows.append(("covariances not from the graph", str(stats["marginal_fallbacks"])))
     for k, v in rows:

@@ -6,7 +6,8 @@ Follows TiEV (DESIGN.md) with the association made exact:
   odometry between keyframes from the CTRV integration of wheel speed and gyro
   with a covariance that grows with distance;
 - tags are trusted and associated by ID (relative Pose2, dropped beyond the range
-  limit);
+  limit); a sighting that places its tag more than ``tag_conflict_distance`` from the
+  tag's estimate (one ID printed twice) is counted in ``tag_conflicts`` and left out;
 - a slot observation's candidates are the nearest mapped slots within a gate plus,
   when its ID is confident, the slot holding that ID; one candidate becomes a
   native-style factor whose loss is a max-mixture with the null hypothesis,
@@ -211,6 +212,7 @@ class Mapper:
         self.odometry_edges: list[tuple] = []  # (k-1, k, delta, covariance, calibration J)
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
         self.tag_mismatches: list[tuple] = []  # (k, tag id, family, size) refused
+        self.tag_conflicts: list[tuple] = []  # (k, tag id, m from the tag) refused
         self._marginal_fallbacks = 0  # slots, tags and lines whose marginal gtsam refused
         # (slots and tags then take the spread of their sightings; lines get no sigma)
         self.lines = LineLandmarks(
@@ -358,11 +360,20 @@ class Mapper:
             # size setting; its range would be wrong by the ratio, so it is reported, not used
             self.tag_mismatches.append((k, tag.tag_id, str(tag.family), float(tag.size)))
             return
+        mTt = compose(pose, tag.vTt)
+        key = T(tag.tag_id)
+        if info["poses"]:
+            known = self.graph.pose(key) if self.use_graph else info["poses"][0]
+            apart = math.hypot(mTt[0] - known[0], mTt[1] - known[1])
+            if apart > self.cfg.tag_conflict_distance:
+                # the same ID printed twice, at two places: the sighting would drag the whole
+                # map (trusted tags have no null); the first place seen keeps the ID
+                self.tag_conflicts.append((k, tag.tag_id, apart))
+                return
         info["heights"].append(tag.height)
-        info["poses"].append(compose(pose, tag.vTt))
+        info["poses"].append(mTt)
         if not self.use_graph:
             return
-        key = T(tag.tag_id)
         if not self.graph.has(key):
             self.graph.add_pose(key, compose(pose, tag.vTt))
         # the sighting's covariance is along the vehicle's axes, the between error along the tag's
@@ -699,6 +710,7 @@ class Mapper:
             "loop_closures_by_id": self.closure.closures,
             "batch_iterations": iterations,
             "tag_size_mismatches": len(self.tag_mismatches),
+            "tag_conflicts": len(self.tag_conflicts),
             "marginal_fallbacks": self._marginal_fallbacks,
             "odometry_scale": round(float(self.calibration[0]), 5),
             "gyro_bias_rad_s": float(self.calibration[1]),

@@ -196,6 +196,29 @@ def test_a_tag_seen_with_another_size_is_reported_not_used(small):
     assert all(t.size == small.world.to_map().tags[0].size for t in result.map.tags)
 
 
+def test_one_tag_id_at_two_places_keeps_the_first_and_reports_the_other(small):
+    """Tags are trusted by ID (no null): the same ID printed twice, 9 m apart, used to drag
+    the map (on another drive: every slot lost, odometry scale -0.1). Sightings placing the
+    tag beyond ``tag_conflict_distance`` from its estimate are reported and left out."""
+    frames = [
+        FrameObservations(f.t, f.slots, tuple(dataclasses.replace(t, tag_id=284)
+                                              if t.tag_id == 545 else t for t in f.tags),
+                          f.markings)
+        for f in small.noisy
+    ]
+    truth = {t.tag_id: t.mTt for t in small.world.to_map().tags}
+    kept = _map(small, frames)
+    assert kept.statistics["tag_conflicts"] > 10
+    (tag,) = kept.map.tags
+    assert min(np.hypot(*(tag.mTt[:2] - truth[i][:2])) for i in (284, 545)) < 0.2
+    assert abs(kept.statistics["odometry_scale"] - 1.0) < 0.02
+    fused = _map(small, frames, tag_conflict_distance=10.0)  # the check off at 9 m apart
+    assert fused.statistics["tag_conflicts"] == 0
+    (wrong,) = fused.map.tags  # pulled between the two places
+    assert min(np.hypot(*(wrong.mTt[:2] - truth[i][:2])) for i in (284, 545)) > 1.0
+    assert evaluate_map(kept.map, _seen_truth(small)).corner_rmse_m < 0.06
+
+
 def test_an_unsolvable_graph_is_a_one_line_mapping_error():
     import gtsam
 
