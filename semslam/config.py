@@ -389,6 +389,14 @@ class LocalizationConfig(_Section):
     check_every: int = Field(
         2, ge=1, description="frames between consistency checks against global relocalization"
     )
+    label_check_window: int = Field(
+        20, ge=1, description="the last IDs read confidently on associated slots that the "
+        "map's labels are checked against"
+    )
+    label_contradiction: float = Field(
+        0.8, gt=0, le=1, description="share of those differing from the map's from which the "
+        "filter is lost (a wrong map; 20 % misread IDs reach 0.5 at worst, BENCHMARKS.md)"
+    )
 
 
 class SemslamConfig(BaseSettings):

@@ -72,6 +72,7 @@ class Associations:
     kinds: list[str] = field(default_factory=list)  # "slot" | "tag" | "marking", per measurement
     slots: list[int] = field(default_factory=list)  # associated map slots (one stacked
     # measurement holds all their corners, as one holds all the frame's markings)
+    slot_observations: list[int] = field(default_factory=list)  # the frame's slot of each
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     count: int = 0  # associated observations
 
@@ -235,6 +236,7 @@ class LocalMap:
         m = PointMeasurement(z, R, self.corners[map_idx].reshape(-1, 2), turn=float(pose[2]),
                              linearised=linearised)
         out.slots.extend(map_idx)
+        out.slot_observations.extend(obs_idx)
         self._accept(out, "slot", m, observations=len(accepted))
 
     def _choose_slots(self, observed, near_pairs, label_pairs) -> list[tuple[int, int, int]]:

@@ -8,8 +8,11 @@ Per frame (observations in the vehicle frame, time ``t``):
 3. all associated measurements are stacked into one update (EKF or sigma points) and the
    whole frame is dropped if its normalised innovation exceeds the frame gate (Houben);
 4. health: ``tracking`` when an update was applied, ``coasting`` when nothing was
-   applied, ``lost`` when the position uncertainty exceeds its limit or several frames in
-   a row had at least two observations of which none could be used; ``relocalized`` on
+   applied, ``lost`` when the position uncertainty exceeds its limit, several frames in
+   a row had at least two observations of which none could be used, or the slot IDs read
+   confidently on the associated slots contradict the map's (at least
+   ``label_contradiction`` of the last ``label_check_window``: a wrong map, or a pose
+   the geometry alone keeps on the wrong slots; misreads are far rarer); ``relocalized`` on
    the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
    several confidently read slot IDs that agree); the position covariance is floored at
    the associated map landmarks' own covariance and the heading variance at the
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -129,6 +133,8 @@ class Localizer:
         self._next_odometry = 0
         self._failures = 0  # frames in a row with observations and nothing applied
         self._disagreements = 0
+        self._label_checks: deque[bool] = deque(maxlen=cfg.label_check_window)  # True: differs
+        self._labels_contradict = False
         self._frames = 0
         self._frame_gates: dict[int, float] = {}
         self._odometry_pose = np.zeros(5)  # dead reckoning in its own frame: x, y, yaw, v, w
@@ -178,8 +184,13 @@ class Localizer:
         update_ms = (time.perf_counter() - started) * 1e3
         considered = assoc.count + assoc.rejected_total  # one odd observation is no failure
         self._failures = 0 if applied or considered < 2 else self._failures + 1
+        self._check_labels(frame, assoc)
         sigma = math.sqrt(max(np.linalg.eigvalsh(self.filter.P[:2, :2])))
-        lost = sigma > self.cfg.lost_position_sigma or self._failures >= self.cfg.lost_rejections
+        lost = (
+            sigma > self.cfg.lost_position_sigma
+            or self._failures >= self.cfg.lost_rejections
+            or self._labels_contradict
+        )
         if lost:
             return self._try_relocalize(frame, LOST, applied, rejected, update_ms)
         if self._frames % self.cfg.check_every == 0 and self._contradicted(frame):
@@ -246,6 +257,23 @@ class Localizer:
             self._frame_gates[dof] = chi2_quantile(self.cfg.frame_gate, dof)
         return self._frame_gates[dof]
 
+    def _check_labels(self, frame: FrameObservations, assoc) -> None:
+        """Compare the IDs read confidently (``id_confidence_high``) on the associated slots
+        with the map's labels; the map is contradicted when at least ``label_contradiction``
+        of the last ``label_check_window`` differ, and no longer when under half of that."""
+        for o, j in zip(assoc.slot_observations, assoc.slots, strict=True):
+            read, mapped = frame.slots[o], self.local_map.slots[j]
+            if (read.label is not None and mapped.label is not None
+                    and read.label_confidence >= self.cfg.id_confidence_high):
+                self._label_checks.append(read.label != mapped.label)
+        window = self._label_checks
+        if len(window) == window.maxlen:
+            share = sum(window) / len(window)
+            if share >= self.cfg.label_contradiction:
+                self._labels_contradict = True
+            elif share < 0.5 * self.cfg.label_contradiction:
+                self._labels_contradict = False
+
     def _contradicted(self, frame: FrameObservations) -> bool:
         """Does a global relocalization of this frame contradict the filter (twice in a row)?"""
         found = self.relocalizer.locate(self.recent.merged() or frame)
@@ -293,6 +321,8 @@ class Localizer:
         self.initialized = True
         self._failures = 0
         self._disagreements = 0
+        self._label_checks.clear()
+        self._labels_contradict = False
 
     def _estimate(self, status, associated, rejected, update_ms) -> FrameEstimate:
         if not self.initialized:

@@ -208,3 +208,22 @@ def test_map_labels_the_mapper_was_unsure_of_are_not_used(sim):
     everything = Localizer(unsure, LocalizationConfig(map_label_confidence_min=0.0), rec.t,
                            rec.odo_speed, rec.odo_yaw_rate)
     assert everything.local_map.slots[0].label == world.slots[0].label
+
+
+def test_a_map_whose_slot_ids_contradict_every_reading_is_lost_not_tracked(sim):
+    """A map of another garage that happens to fit the geometry: every confidently read ID
+    differs from the map slot it was associated with. It used to be 'tracking' throughout;
+    the label check calls it lost (and relocalization finds nothing to agree with)."""
+    world = sim.world.to_map()
+    other = dataclasses.replace(
+        world, tags=(),
+        slots=tuple(dataclasses.replace(s, label=f"q{i}") for i, s in enumerate(world.slots)),
+    )
+    rec = sim.record
+    cfg = LocalizationConfig()
+    wrong = Localizer(other, cfg, rec.t, rec.odo_speed, rec.odo_yaw_rate, sim.frame_poses[0])
+    statuses = [wrong.step(f).status for f in sim.noisy]
+    first = statuses.index("lost")
+    assert first < 60 and statuses[first:].count("lost") > 0.95 * len(statuses[first:])
+    _, estimates = _run(sim)  # the right map, 20 % of the IDs misread: never
+    assert all(e.status != "lost" for e in estimates)
