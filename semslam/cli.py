@@ -80,6 +80,23 @@ def _refuse_drive_files(drive: Path, outputs: list[Path], text: str) -> None:
             raise SemslamError(f"-o {text}: would replace {path}, a file of the drive {drive}")
 
 
+def _refuse_inputs(outputs: list[Path], inputs: dict[str, Path | None], text: str) -> None:
+    """One line if an output would replace a file the command reads: the same folder entry,
+    or the file an input link points to (an output that is a link is itself replaced, so
+    the file behind it is safe)."""
+
+    def entry(path: Path) -> str:
+        return os.path.join(os.path.realpath(path.parent), path.name)
+
+    for what, path in inputs.items():
+        if path is None:
+            continue
+        read = {entry(path), os.path.realpath(path)}
+        for out in outputs:
+            if entry(out) in read:
+                raise SemslamError(f"-o {text}: would replace {path}, the {what} it reads")
+
+
 def _output_file(text: str, option: str = "-o") -> Path:
     """Before any work: ``text`` names a file that can be written, or a one-line error."""
     path = _output_path(text, option)
@@ -238,6 +255,7 @@ def map_command(
             if sibling.is_dir():
                 raise SemslamError(f"-o {output}: {sibling}, written beside the map, is a folder")
         _refuse_drive_files(drive, [out, *sibling_paths(out)], output)
+        _refuse_inputs([out, *sibling_paths(out)], {"--config file": config}, output)
         cfg = with_overrides(
             load_config(config), mapping={"optimizer": optimizer, "robust": robust}
         )
@@ -282,9 +300,7 @@ def localize(
         if track.is_dir():
             raise SemslamError(f"-o {output}: {track} (the per-frame track) is a folder")
         _refuse_drive_files(drive, [out, track], output)
-        if map_path.resolve() in (out.resolve(), track.resolve()):
-            raise SemslamError(f"-o {output}: would replace the map {map_path} it localizes "
-                               "against")
+        _refuse_inputs([out, track], {"map": map_path, "--config file": config}, output)
         parse_init(init)
         cfg = with_overrides(load_config(config), localization={"update": update})
         summary = localize_drive(drive, map_path, out, observations.value, init, cfg, progress)
@@ -415,6 +431,7 @@ def optimize(
 
     try:
         out = _output_file(output)
+        _refuse_inputs([out], {"graph": graph}, output)
         summary = optimize_g2o_file(graph, out, robust.value)
     except (SemslamError, OSError) as e:
         _fail(e)

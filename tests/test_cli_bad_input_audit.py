@@ -81,8 +81,39 @@ def test_localize_refuses_to_write_over_its_own_map(small_drive, tmp_path):
     shutil.copy(small_drive / "world.json", the_map)
     before = the_map.read_bytes()
     result = _run("localize", small_drive, "--map", the_map, "-o", the_map)
-    _fails(result, "would replace the map")
+    _fails(result, "would replace", "the map it reads")
     assert the_map.read_bytes() == before
+
+
+def test_no_output_replaces_the_config_or_graph_the_command_reads(small_drive, tmp_path):
+    config = tmp_path / "cfg.json"
+    config.write_text('{"mapping": {}}')
+    link = tmp_path / "link.json"
+    link.symlink_to(config)
+    for args in (
+        ("map", small_drive, "-o", config, "--config", config),
+        ("map", small_drive, "-o", config, "--config", link),  # through a link
+        ("map", small_drive, "-o", tmp_path / "cfg.json", "--config", tmp_path / "x/../cfg.json"),
+        ("localize", small_drive, "--map", small_drive / "world.json", "-o",
+         tmp_path / "cfg.tum", "--config", tmp_path / "cfg.csv"),  # the track CSV
+    ):
+        if args[-1].name == "cfg.csv":
+            args[-1].write_text("{}")
+        result = _run(*args, "--no-progress")
+        _fails(result, "would replace", "the --config file it reads")
+    assert config.read_text() == '{"mapping": {}}'
+    graph = tmp_path / "g.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    before = graph.read_text()
+    _fails(_run("optimize", graph, "-o", graph), "would replace", "the graph it reads")
+    assert graph.read_text() == before
+
+
+def test_demo_refuses_a_folder_of_other_files(tmp_path):
+    (tmp_path / "report.md").write_text("my notes")
+    result = _run("demo", tmp_path, "--preset", "small", "--no-progress")
+    _fails(result, "folder is not empty and holds no earlier demo")
+    assert sorted(os.listdir(tmp_path)) == ["report.md"]
 
 
 # 2

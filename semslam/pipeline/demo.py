@@ -25,6 +25,22 @@ from typing import Any
 import numpy as np
 
 from semslam.config import SemslamConfig
+from semslam.errors import SemslamError
+
+
+def check_demo_folder(out_dir: Path) -> None:
+    """Refuse an ``out_dir`` that holds files but no earlier demo (its ``results.json``, or
+    the mapping drive it writes first): the demo writes map.json, report.md and more there,
+    over whatever has those names."""
+    out = Path(out_dir)
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if (out / "results.json").is_file() or (out / "drive_map" / "drive.json").is_file():
+        return
+    raise SemslamError(
+        f"{out}: folder is not empty and holds no earlier demo, whose files the demo would "
+        "replace; choose another folder"
+    )
 
 
 def run_demo(
@@ -53,6 +69,7 @@ def run_demo(
     from semslam.plots import audit_figure, error_figure, map_figure, trajectory_figure
 
     out = Path(out_dir)
+    check_demo_folder(out)
     out.mkdir(parents=True, exist_ok=True)
     pictures = out / "pictures"
     timings: dict[str, float] = {}
