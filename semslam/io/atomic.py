@@ -7,7 +7,8 @@ target keeps its old content and the temporary file is removed.
 
 Within :func:`atomic_group`, the files written are renamed over their targets together
 at the end, so a command that writes several outputs (a map and the files beside it)
-replaces all of them or none.
+replaces all of them or none: Ctrl-C and SIGTERM wait until the renames are done
+(:func:`signals_deferred`), and a rename that fails puts back the targets already replaced.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ import contextlib
 import errno
 import os
 import secrets
+import signal
+import threading
 from collections.abc import Iterator
 from contextvars import ContextVar
 from pathlib import Path
@@ -52,14 +55,58 @@ def atomic_group() -> Iterator[None]:
     if special:
         _remove(tmp for tmp, _ in pending)
         raise _special_error(special[0])
-    for k, (tmp, target) in enumerate(pending):
-        try:
-            os.replace(tmp, target)
-        except BaseException:
-            _remove(tmp for tmp, _ in pending[k:])
-            raise
+    with signals_deferred():
+        _replace_together(pending)
     for folder in {target.parent for _, target in pending}:
         _fsync_folder(folder)
+
+
+def _replace_together(pending: list[tuple[Path, Path]]) -> None:
+    """Rename every ``(tmp, target)``; if one rename fails, the targets already replaced get
+    their old files back (kept as hard links meanwhile; where the file system has none,
+    that target cannot be put back) and the new ones created are removed."""
+    existed = {target for _, target in pending if os.path.lexists(target)}
+    backups: dict[Path, Path] = {}
+    for target in existed:
+        backup = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.old")
+        try:
+            os.link(target, backup, follow_symlinks=False)
+        except OSError:
+            continue
+        backups[target] = backup
+    replaced: list[Path] = []
+    try:
+        for tmp, target in pending:
+            os.replace(tmp, target)
+            replaced.append(target)
+    except BaseException:
+        for target in replaced:
+            with contextlib.suppress(OSError):
+                if target in backups:
+                    os.replace(backups.pop(target), target)
+                elif target not in existed:
+                    os.unlink(target)
+        _remove(tmp for tmp, target in pending if target not in replaced)
+        raise
+    finally:
+        _remove(backups.values())
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block ends (then they arrive as usual), so a few
+    renames that belong together are not cut in half. A no-op off the main thread or
+    where signals cannot be masked."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def is_special_file(target: str | os.PathLike[str]) -> bool:
@@ -101,9 +148,9 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     tmp = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     # O_EXCL: never clobber a stranger's file; mode 0o666 so the umask applies
     # as for an ordinary open().
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     group = _pending.get()
-    try:
+    try:  # the open inside: an interrupt just after it still removes the file
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

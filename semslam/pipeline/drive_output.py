@@ -11,6 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from semslam.errors import SemslamError
+from semslam.io.atomic import signals_deferred
 
 DRIVE_ENTRIES = frozenset({
     "config.json", "drive.json", "frames.csv", "groundtruth.tum", "images", "labels", "masks",
@@ -50,13 +51,19 @@ def prepare_drive_folder(out_dir: Path, error: type[SemslamError]) -> Path:
 def commit_drive_folder(tmp: Path, out_dir: Path) -> None:
     """Move the finished ``tmp`` folder to ``out_dir``, replacing an old drive there."""
     out_dir = Path(out_dir).resolve()
-    old = None
-    if out_dir.exists():
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        out_dir.rename(old)
-    tmp.rename(out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+    with signals_deferred():  # Ctrl-C waits: no old drive left half-deleted beside the new
+        old = None
+        if out_dir.exists():
+            old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+            out_dir.rename(old)
+        try:
+            tmp.rename(out_dir)
+        except OSError:
+            if old is not None:
+                old.rename(out_dir)
+            raise
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 @contextmanager

@@ -77,6 +77,45 @@ def test_a_failed_or_interrupted_group_replaces_none(tmp_path: Path) -> None:
         assert a.read_text() == "old a" and os.listdir(tmp_path) == ["a.txt"]
 
 
+def test_a_rename_failing_within_a_group_puts_the_replaced_files_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The third of three renames fails (an immutable file, say): the first target gets its
+    old file back, the second, new one is removed, and nothing temporary is left."""
+    from semslam.io.atomic import atomic_group
+
+    a, b, c = tmp_path / "a.txt", tmp_path / "b.txt", tmp_path / "c.txt"
+    a.write_text("old a")
+    c.write_text("old c")
+    real_replace = os.replace
+
+    def replace(src, dst):
+        if Path(dst) == c:
+            raise PermissionError(1, "Operation not permitted", str(dst))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(PermissionError), atomic_group():
+        for path in (a, b, c):
+            atomic_write_text(path, "new")
+    assert (a.read_text(), c.read_text()) == ("old a", "old c")
+    assert sorted(os.listdir(tmp_path)) == ["a.txt", "c.txt"]
+
+
+def test_ctrl_c_waits_until_the_renames_are_done() -> None:
+    import signal
+
+    from semslam.io.atomic import signals_deferred
+
+    reached_end = False
+    with pytest.raises(KeyboardInterrupt), signals_deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # bytecodes where the interrupt would otherwise land
+            pass
+        reached_end = True
+    assert reached_end
+
+
 def test_a_group_with_a_folder_for_a_target_replaces_none(tmp_path: Path) -> None:
     from semslam.io.atomic import atomic_group
 
