@@ -94,19 +94,23 @@ def _replace_together(pending: list[tuple[Path, Path]]) -> None:
 
 @contextlib.contextmanager
 def signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM until the block ends (then they arrive as usual), so a few
-    renames that belong together are not cut in half. A no-op off the main thread or
-    where signals cannot be masked."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(
-        signal, "pthread_sigmask"
-    ):
+    """Hold SIGINT and SIGTERM until the block ends, then raise them again, so a few renames
+    that belong together are not cut in half. Python's handlers are swapped, not the
+    signal mask: a signal sent to the process may reach any of its threads (onnxruntime's,
+    a progress bar's). A no-op off the main thread, where handlers cannot be set."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    caught: list[int] = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, lambda signum, _frame: caught.append(signum)) for s in held}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        for s in dict.fromkeys(caught):
+            signal.raise_signal(s)
 
 
 def is_special_file(target: str | os.PathLike[str]) -> bool:
