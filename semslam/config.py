@@ -32,7 +32,11 @@ from semslam.io._json import first_line, loads
 MAX_SETTING = 1e3
 """Largest magnitude of a real-valued setting. Settings are metres, seconds, radians,
 sigmas, gates and rates; beyond a thousand a file is broken, and the filters' squares and
-gates would overflow or admit every candidate. Integer settings (counts) are not bounded."""
+gates would overflow or admit every candidate."""
+
+MAX_COUNT = 1_000_000
+"""Largest integer setting (counts of keyframes, frames, iterations, observations): beyond it
+a file is broken, and gtsam's C++ integers overflow (2**31 crashed iSAM2's parameters)."""
 
 
 MAX_GATE = 10.0
@@ -52,6 +56,8 @@ class _Section(BaseModel):
                 raise ValueError(f"{v} is not a finite number")
             if isinstance(v, float) and abs(v) > MAX_SETTING:
                 raise ValueError(f"{v:g} is out of range (|value| <= {MAX_SETTING:g})")
+            if isinstance(v, int) and not isinstance(v, bool) and abs(v) > MAX_COUNT:
+                raise ValueError(f"{v} is out of range (|value| <= {MAX_COUNT:,})")
         return value
 
 
@@ -148,7 +154,7 @@ class RenderConfig(_Section):
     images: bool = True
     image_format: str = Field("jpg", pattern="^(jpg|png)$")
     jpeg_quality: int = Field(92, ge=50, le=100)
-    workers: int = Field(2, ge=1, description="processes rendering images")
+    workers: int = Field(2, ge=1, le=64, description="processes rendering images")
 
 
 class SimulationConfig(_Section):

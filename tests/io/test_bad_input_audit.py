@@ -215,6 +215,20 @@ def test_min_speed_above_max_speed_names_both(tmp_path: Path) -> None:
     _one_line(exc, "c.json", "simulation.drive", "min_speed (5)", "max_speed (1)")
 
 
+def test_a_huge_integer_setting_is_refused_before_gtsam_overflows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "c.json"
+    path.write_text('{"mapping": {"relinearize_skip": 99999999999999999999}}')
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", "mapping.relinearize_skip", "out of range", "1,000,000")
+    monkeypatch.setenv("SEMSLAM_MAPPING__RELINEARIZE_SKIP", "2147483648")  # crashed iSAM2
+    with pytest.raises(ConfigError) as exc:
+        load_config()
+    _one_line(exc, "SEMSLAM_MAPPING__RELINEARIZE_SKIP", "out of range")
+
+
 def test_a_semslam_variable_overrides_the_config_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
