@@ -510,3 +510,16 @@ def test_sigterm_removes_the_half_written_drive(tmp_path):
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=60) == 128 + signal.SIGTERM
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_drive_folder_whose_name_is_not_utf8_maps(small_drive, tmp_path):
+    """The map's metadata holds the drive's path: a name with a byte that is not UTF-8 used
+    to crash the writer (a lone surrogate); it is written as U+FFFD."""
+    from semslam.io import load_map
+
+    drive = tmp_path / os.fsdecode(b"bad\xffname")
+    shutil.copytree(small_drive, drive)
+    out = tmp_path / "m.json"
+    result = _run("map", drive, "-o", out, "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert load_map(out).metadata["source"].endswith("bad\ufffdname")

@@ -37,3 +37,9 @@ def text_lines(text: str) -> list[str]:
     if lines and lines[-1] == "":
         lines.pop()
     return [line[:-1] if line.endswith("\r") else line for line in lines]
+
+
+def path_text(path: str | os.PathLike[str]) -> str:
+    """``path`` as text that can be written as UTF-8: bytes of a file name that are not
+    UTF-8 (kept by Python as lone surrogates, which no UTF-8 writer takes) become U+FFFD."""
+    return os.fspath(path).encode("utf-8", "surrogateescape").decode("utf-8", "replace")

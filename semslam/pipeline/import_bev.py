@@ -352,6 +352,7 @@ def import_garage_bev(
         write_observations,
         write_odometry,
     )
+    from semslam.io._text import path_text
     from semslam.io.atomic import atomic_write_text
     from semslam.io.garage_bev import (
         METRES_PER_PX,
@@ -441,7 +442,7 @@ def import_garage_bev(
                 markings=tuple(Marking(s[0].copy(), s[1].copy(), 0.1) for s in segments),
                 metadata={
                     "generator": f"semslam {__version__}",
-                    "source": os.fspath(src.resolve() / "vector_map"),
+                    "source": path_text(src.resolve() / "vector_map"),
                     "frame": "map x = Ly, map y = Bx",
                 },
             ),
@@ -456,7 +457,7 @@ def import_garage_bev(
                 frame_rate=10.0,
                 source={
                     "generator": f"semslam {__version__}",
-                    "recording": os.fspath(src.resolve()),
+                    "recording": path_text(src.resolve()),
                     "origin": "zhaojinlong-123/3D-SMLoc commit d4c8b26",
                     "map_frame": "the odometry file's x-y plane; vector map x = Ly, y = Bx",
                     "vehicle_frame": "ISO 8855, origin vehicle_origin_m along x from the "

@@ -91,6 +91,7 @@ def build_map(
 ) -> MapSummary:
     """Map the drive at ``drive_folder`` and write ``map_path`` and its siblings."""
     from semslam.io import Drive, save_map, write_tum
+    from semslam.io._text import path_text
     from semslam.io.atomic import atomic_group, atomic_write_text
     from semslam.io.g2o import write_g2o
     from semslam.mapping.export import to_pose_graph
@@ -121,7 +122,7 @@ def build_map(
             "generator": "semslam",
             "version": __version__,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            "source": str(Path(drive_folder).resolve()),
+            "source": path_text(Path(drive_folder).resolve()),
             "drive": drive.info.name,
             "observations": observations,
             "statistics": statistics,

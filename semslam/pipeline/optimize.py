@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import os
 from dataclasses import replace
-from pathlib import Path
 
+from semslam.io._text import path_text
 from semslam.io.g2o import read_g2o, write_g2o
 from semslam.mapping.pose_graph import optimize_pose_graph
 
@@ -53,8 +53,8 @@ def optimize_g2o_file(
     n_mix = len(graph.mixtures)
     accepted = int(result.accepted.sum())
     return {
-        "input": str(Path(in_path)),
-        "output": str(Path(out_path)),
+        "input": path_text(in_path),
+        "output": path_text(out_path),
         "robust": result.robust,
         "schedule": result.schedule,
         "poses": len(graph.vertices),
