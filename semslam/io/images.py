@@ -27,8 +27,9 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     expanded, or as grey (H, W) with ``grey``.
 
     Raises:
-        FormatError: the file is missing, not an image OpenCV can read, or a JPEG cut short
-            (OpenCV would decode what is there and fill the rest with grey).
+        FormatError: the file is missing, not an image OpenCV can read (or larger than it
+            decodes), or a JPEG cut short (OpenCV would decode what is there and fill the
+            rest with grey).
     """
     p = Path(path)
     if not p.is_file():
@@ -39,9 +40,17 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     image = None
     if data:  # imdecode asserts on an empty buffer
         with _opencv_quiet():  # its own warnings ("can not handle 32-bit samples") before ours
-            image = cv2.imdecode(
-                np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
-            )
+            try:
+                image = cv2.imdecode(
+                    np.frombuffer(data, np.uint8),
+                    cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR,
+                )
+            except cv2.error as exc:  # e.g. a header claiming more pixels than OpenCV takes
+                if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
+                    raise FormatError(
+                        f"{p}: its header claims more pixels than OpenCV decodes (2^30)"
+                    ) from None
+                raise FormatError(f"{p}: OpenCV cannot decode it") from None
     if image is None:
         raise FormatError(f"{p}: not an image OpenCV can read")
     return image

@@ -24,6 +24,23 @@ def test_an_image_opencv_cannot_decode_is_one_error_and_no_opencv_warning(
     assert cv2.utils.logging.getLogLevel() == level  # restored
 
 
+def test_a_png_whose_header_claims_too_many_pixels_is_one_error(tmp_path: Path) -> None:
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        body = kind + data
+        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
+
+    path = tmp_path / "bomb.png"  # 60000 x 60000 grey, four rows: cv2.error escaped
+    ihdr = struct.pack(">IIBBBBB", 60000, 60000, 8, 0, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 60001 * 4)  # four rows of zeros
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat)
+                     + chunk(b"IEND", b""))
+    with pytest.raises(FormatError, match="bomb.png: its header claims more pixels"):
+        read_image(path)
+
+
 def test_a_png_reads_as_bgr_or_grey(tmp_path: Path) -> None:
     path = _png(tmp_path)
     assert read_image(path).shape == (6, 4, 3)
