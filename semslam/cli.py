@@ -117,6 +117,10 @@ def _output_folder(text: str, option: str = "-o") -> Path:
     return path
 
 
+MAX_BENCH_FRAMES = 10_000
+"""Most frames `semslam bench` times per stage (10 to 30 ms each: minutes already)."""
+
+
 def _at_least(value: int, least: int, option: str) -> None:
     if value < least:
         raise SemslamError(f"{option}: must be at least {least}, got {value}")
@@ -725,6 +729,9 @@ def bench(
 
     try:
         _at_least(frames, 1, "--frames")
+        if frames > MAX_BENCH_FRAMES:
+            raise SemslamError(f"--frames: at most {MAX_BENCH_FRAMES:,} (a few minutes of "
+                               f"timing), got {frames}")
         result = run_bench(load_config(config), frames, large,
                            log=lambda m: typer.echo(m, err=True))
     except (SemslamError, OSError) as e:

@@ -173,6 +173,11 @@ def test_bench_refuses_no_frames(frames):
     _fails(_run("bench", "--frames", frames), "--frames", "at least 1")
 
 
+@pytest.mark.parametrize("frames", ["10001", "99999999999999999999999"])
+def test_bench_refuses_more_frames_than_minutes_of_timing(frames):
+    _fails(_run("bench", "--frames", frames), "--frames: at most 10,000")  # numpy crashed
+
+
 # 6
 @pytest.mark.parametrize(("size", "decimate", "left"), [((792, 1056), "400", "2 x 1"),
                                                         ((16, 16), "8", "2 x 2")])
