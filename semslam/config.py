@@ -28,6 +28,7 @@ from pydantic_settings import BaseSettings, EnvSettingsSource, SettingsConfigDic
 
 from semslam.errors import ConfigError
 from semslam.io._json import first_line, loads
+from semslam.io._text import read_text
 
 MAX_SETTING = 1e3
 """Largest magnitude of a real-valued setting. Settings are metres, seconds, radians,
@@ -423,13 +424,7 @@ def load_config(path: Path | None = None) -> SemslamConfig:
     data: dict[str, Any] = {}
     if path is not None:
         try:
-            data = loads(Path(path).read_text(encoding="utf-8-sig"))
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: config file not found") from None
-        except UnicodeDecodeError:
-            raise ConfigError(f"{path}: not UTF-8 text") from None
-        except OSError as e:
-            raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
+            data = loads(read_text(path, ConfigError))
         except json.JSONDecodeError as e:
             raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
         except (ValueError, RecursionError) as e:  # a key twice, an integer of 5000 digits

@@ -7,21 +7,30 @@ from pathlib import Path
 
 from semslam.errors import SemslamError
 
+MAX_TEXT_BYTES = 1 << 30
+"""Largest text file read, bytes (1 GiB; the observations of a long drive are tens of MB):
+more is not a semslam file, and ``/dev/zero`` given as one would fill the memory."""
+
 
 def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
     """The content of ``path`` decoded as UTF-8 (a leading BOM is dropped).
 
     Raises:
-        error: the file is missing, unreadable or not UTF-8; the message names the file.
+        error: the file is missing, unreadable, larger than :data:`MAX_TEXT_BYTES` or not
+            UTF-8; the message names the file.
     """
     try:
-        data = Path(path).read_bytes()
+        with Path(path).open("rb") as f:
+            data = f.read(MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         raise error(f"{os.fspath(path)}: file not found") from None
     except IsADirectoryError:
         raise error(f"{os.fspath(path)}: a folder, not a file") from None
     except OSError as exc:
         raise error(f"{os.fspath(path)}: cannot read ({exc.strerror or exc})") from None
+    if len(data) > MAX_TEXT_BYTES:
+        raise error(f"{os.fspath(path)}: larger than {MAX_TEXT_BYTES >> 30} GiB, not a text file "
+                    "semslam reads")
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -254,6 +254,19 @@ def test_a_value_is_blamed_on_a_variable_only_if_the_variable_holds_it(
     _one_line(exc, "SEMSLAM_MAPPING__OPTIMIZER: mapping.optimizer")
 
 
+def test_a_config_that_never_ends_is_refused_without_filling_the_memory(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`--config /dev/zero` read until the kernel killed it (23 GB); every text reader now
+    stops after MAX_TEXT_BYTES (1 GiB; 4 KiB here)."""
+    import semslam.io._text as text_module
+
+    monkeypatch.setattr(text_module, "MAX_TEXT_BYTES", 4096)
+    with pytest.raises(ConfigError) as exc:
+        load_config(Path("/dev/zero"))
+    _one_line(exc, "/dev/zero: larger than", "not a text file semslam reads")
+
+
 def test_a_misspelt_section_in_a_semslam_variable_is_refused(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -266,7 +279,7 @@ def test_a_misspelt_section_in_a_semslam_variable_is_refused(
 @pytest.mark.parametrize(
     ("content", "words"),
     [
-        (b"\xff\xfe{}", ["c.json: not UTF-8 text"]),
+        (b"\xff\xfe{}", ["c.json line 1: not UTF-8 text"]),
         (b'{"mapping": {"calibration_walk": [-0.002, 2e-5]}}', ["calibration_walk", "sigmas >= 0"]),
         (b'{"mapping": {"calibration_walk": [NaN, 1]}}', ["calibration_walk", "not a finite"]),
         (b'{"simulation": {"observation_noise": {"detection_confidence_range": [0.9, 0.1]}}}',
