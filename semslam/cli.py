@@ -186,6 +186,25 @@ def simulate(
     print_simulation_summary(summary)
 
 
+class MapOptimizer(StrEnum):
+    isam2 = "isam2"
+    none = "none"
+
+
+class MapRobust(StrEnum):
+    maxmix = "maxmix"
+    none = "none"
+
+
+class UpdateMode(StrEnum):
+    ekf = "ekf"
+    sigma = "sigma"
+
+
+def _value(choice: StrEnum | None) -> str | None:
+    return None if choice is None else choice.value
+
+
 class ObservationSource(StrEnum):
     exact = "exact"
     noisy = "noisy"
@@ -237,10 +256,13 @@ def map_command(
         ObservationSource, typer.Option(help="Which observations to map from.")
     ] = ObservationSource.noisy,
     optimizer: Annotated[
-        str | None, typer.Option(help="isam2 (factor graph) or none (odometry only).")
+        MapOptimizer | None,
+        typer.Option(help="isam2 (factor graph) or none (odometry only); default: the config's."),
     ] = None,
     robust: Annotated[
-        str | None, typer.Option(help="maxmix (null hypothesis) or none (plain least squares).")
+        MapRobust | None,
+        typer.Option(help="maxmix (null hypothesis) or none (plain least squares); default: "
+                     "the config's."),
     ] = None,
     config: ConfigOption = None,
     progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
@@ -261,7 +283,7 @@ def map_command(
         _refuse_drive_files(drive, [out, *sibling_paths(out)], output)
         _refuse_inputs([out, *sibling_paths(out)], {"--config file": config}, output)
         cfg = with_overrides(
-            load_config(config), mapping={"optimizer": optimizer, "robust": robust}
+            load_config(config), mapping={"optimizer": _value(optimizer), "robust": _value(robust)}
         )
         summary = build_map(drive, out, observations.value, cfg, progress)
     except (SemslamError, OSError) as e:
@@ -285,7 +307,9 @@ def localize(
         ObservationSource, typer.Option(help="Which observations to localize with.")
     ] = ObservationSource.noisy,
     update: Annotated[
-        str | None, typer.Option(help="ekf (analytic Jacobians) or sigma (Houben's sigma points).")
+        UpdateMode | None,
+        typer.Option(help="ekf (analytic Jacobians) or sigma (Houben's sigma points); default: "
+                     "the config's."),
     ] = None,
     config: ConfigOption = None,
     progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
@@ -306,7 +330,7 @@ def localize(
         _refuse_drive_files(drive, [out, track], output)
         _refuse_inputs([out, track], {"map": map_path, "--config file": config}, output)
         parse_init(init)
-        cfg = with_overrides(load_config(config), localization={"update": update})
+        cfg = with_overrides(load_config(config), localization={"update": _value(update)})
         summary = localize_drive(drive, map_path, out, observations.value, init, cfg, progress)
     except (SemslamError, OSError) as e:
         _fail(e)
@@ -806,9 +830,9 @@ def run() -> None:
         elif hasattr(e, "format_message") and getattr(e, "exit_code", None) == 2:
             ctx = getattr(e, "ctx", None)
             command = ctx.command_path if ctx is not None else "semslam"
-            if e.format_message():  # empty: no arguments at all, the help is printed already
-                typer.echo(f"{command}: error: {e.format_message()} (see {command} --help)",
-                           err=True)
+            message = e.format_message().replace("Value error, ", "")  # typer's enum wording
+            if message:  # empty: no arguments at all, the help is printed already
+                typer.echo(f"{command}: error: {message} (see {command} --help)", err=True)
             code = 2
         else:
             raise

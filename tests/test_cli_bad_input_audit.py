@@ -423,7 +423,11 @@ def test_evaluate_trajectory_refuses_times_that_never_meet_the_truth(small_drive
     [(["map"], "semslam map: error: Missing argument 'drive'."),
      (["nosuch"], "semslam: error: No such command 'nosuch'."),
      (["accuracy", "m.json", "-o", "x", "--grid-step", "abc"],
-      "semslam accuracy: error: Invalid value for '--grid-step'")],
+      "semslam accuracy: error: Invalid value for '--grid-step'"),
+     (["map", "d", "-o", "m.json", "--robust", "dcs"],  # named the config, not the option
+      "semslam map: error: Invalid value for '--robust': 'dcs' is not one of 'maxmix', 'none'"),
+     (["localize", "d", "--map", "m.json", "-o", "t.tum", "--update", "x"],
+      "semslam localize: error: Invalid value for '--update': 'x' is not one of 'ekf'")],
 )
 def test_usage_errors_are_one_line_through_the_console_entry(args, message):
     import subprocess
