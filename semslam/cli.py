@@ -102,6 +102,8 @@ def _output_file(text: str, option: str = "-o") -> Path:
     path = _output_path(text, option)
     if path.is_dir():
         raise SemslamError(f"{option} {text}: is a folder, not a file")
+    if text.endswith(("/", os.sep)):  # pathlib would drop the slash and write a file there
+        raise SemslamError(f"{option} {text}: ends in a slash, as a folder does; name a file")
     if is_special_file(path):  # refused by the atomic write too, but only after the work
         raise SemslamError(f"{option} {text}: {SPECIAL_FILE_MESSAGE}")
     _check_writable_folder(path.parent, option, text)

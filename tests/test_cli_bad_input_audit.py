@@ -532,3 +532,23 @@ def test_a_drive_folder_whose_name_is_not_utf8_maps(small_drive, tmp_path):
     result = _run("map", drive, "-o", out, "--no-progress")
     assert result.exit_code == 0, result.output
     assert load_map(out).metadata["source"].endswith("bad\ufffdname")
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [  # messages named the library's arguments (crop_rows, radius), not the options
+        (["import", "garage-bev", "src", "out", "--every", "0"], ["--every: must be >= 1"]),
+        (["import", "garage-bev", "src", "out", "--crop-rows", "-1"], ["--crop-rows: must be"]),
+        (["evaluate", "markings", "m.json", "--vector-map", "v", "--radius", "0"],
+         ["--radius: must be a positive number"]),
+    ],
+)
+def test_errors_name_the_option_given(tmp_path, monkeypatch, args, words):
+    monkeypatch.chdir(tmp_path)
+    _fails(_run(*args), *words)
+
+
+def test_an_output_file_named_like_a_folder_is_refused(small_drive, tmp_path):
+    result = _run("map", small_drive, "-o", f"{tmp_path}/newout/", "--no-progress")
+    _fails(result, "newout/: ends in a slash")
+    assert os.listdir(tmp_path) == []  # it wrote a file `newout` and five beside it

@@ -168,7 +168,8 @@ def evaluate_markings_files(
         area and ``radius_m``, ``tolerance_m``; None where a direction has no point.
 
     Raises:
-        ConfigError: ``radius`` or ``tolerance`` is not a positive number, or there
+        ConfigError: ``radius`` or ``tolerance`` is not a positive number (named as the
+            command's options), or there
             is no trajectory.
         MapError, FormatError, DriveError: a file is missing or broken (one line naming
             the file and line).
@@ -177,7 +178,7 @@ def evaluate_markings_files(
     from semslam.io import load_map, read_tum
     from semslam.io.garage_bev import read_vector_map
 
-    for name, value in (("radius", radius), ("tolerance", tolerance)):
+    for name, value in (("--radius", radius), ("--tolerance", tolerance)):
         if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
     map_path = Path(map_path)

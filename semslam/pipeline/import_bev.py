@@ -369,8 +369,10 @@ def import_garage_bev(
 
     started = time.perf_counter()
     src, out_dir = Path(src), Path(out_dir)
-    if crop_rows < 0 or every < 1:
-        raise DriveError(f"crop_rows must be >= 0 and every >= 1, got {crop_rows}, {every}")
+    if crop_rows < 0:
+        raise DriveError(f"--crop-rows: must be >= 0, got {crop_rows}")
+    if every < 1:
+        raise DriveError(f"--every: must be >= 1, got {every}")
     rec = open_garage_bev(src)
     segments = read_vector_map(src)
     offset, heading = odometry_point(rec.odometry_t, rec.odometry_poses) if calibrate else (0, 0)
@@ -399,7 +401,7 @@ def import_garage_bev(
                     shape = mask.shape
                     if 2 * crop_rows >= shape[0]:
                         raise DriveError(
-                            f"{os.fspath(path)}: crop_rows {crop_rows} blanks all "
+                            f"{os.fspath(path)}: --crop-rows {crop_rows} blanks all "
                             f"{shape[0]} rows of the mask (at most {(shape[0] - 1) // 2})"
                         )
                 elif mask.shape != shape:

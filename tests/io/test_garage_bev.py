@@ -315,7 +315,7 @@ def test_import_writes_a_drive_semslam_reads(tmp_path: Path) -> None:
 def test_import_refuses_a_crop_that_blanks_the_whole_mask(tmp_path: Path) -> None:
     from semslam.pipeline.import_bev import import_garage_bev
 
-    with pytest.raises(DriveError, match=r"crop_rows 100000 blanks all \d+ rows of the mask"):
+    with pytest.raises(DriveError, match=r"--crop-rows 100000 blanks all \d+ rows of the mask"):
         import_garage_bev(REAL, tmp_path / "drive", crop_rows=100_000, every=200)
     assert not (tmp_path / "drive").exists()
 
