@@ -821,6 +821,9 @@ def run() -> None:
     stderr, exit code 2, instead of click's framed box. SIGTERM exits as SystemExit(143),
     so a half-written output folder is removed as it is on Ctrl-C."""
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    for stream in (sys.stdout, sys.stderr):  # a path or label the terminal cannot show
+        if hasattr(stream, "reconfigure"):  # (PYTHONIOENCODING=ascii) is replaced, not fatal
+            stream.reconfigure(errors="replace")
     try:
         code = app(prog_name="semslam", standalone_mode=False)
     except KeyboardInterrupt:

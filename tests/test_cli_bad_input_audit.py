@@ -552,3 +552,20 @@ def test_an_output_file_named_like_a_folder_is_refused(small_drive, tmp_path):
     result = _run("map", small_drive, "-o", f"{tmp_path}/newout/", "--no-progress")
     _fails(result, "newout/: ends in a slash")
     assert os.listdir(tmp_path) == []  # it wrote a file `newout` and five beside it
+
+
+def test_a_terminal_that_cannot_show_a_path_does_not_crash_the_summary(tmp_path):
+    """PYTHONIOENCODING=ascii: rich's summary table raised UnicodeEncodeError after the
+    outputs were written (exit 1, a traceback)."""
+    import subprocess
+    import sys
+
+    graph = tmp_path / "ü.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "semslam", "optimize", str(graph), "-o", str(tmp_path / "ö.g2o")],
+        capture_output=True, text=True, check=False,
+        env={**os.environ, "PYTHONIOENCODING": "ascii"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "ö.g2o").is_file()
