@@ -474,18 +474,25 @@ def _not_json(error: SettingsError) -> ConfigError:
     return ConfigError(f"{variable}: not valid JSON (a section is set as a JSON object)")
 
 
-def _set_by(variable: str, value: Any) -> bool:
-    """Whether the SEMSLAM_ ``variable`` holds ``value`` (the value that failed), as text
-    or as JSON."""
+def _set_by(variable: str, value: Any, loc: tuple[Any, ...] = ()) -> bool:
+    """Whether the SEMSLAM_ ``variable`` holds ``value`` (the value that failed at ``loc``),
+    as text or as JSON; a variable setting a whole section as a JSON object
+    (``SEMSLAM_MAPPING='{"robust": "x"}'``) holds it at the rest of ``loc``."""
     raw = os.environ.get(variable)
     if raw is None:
         return False
     if isinstance(value, str) and raw == value:
         return True
     try:
-        return json.loads(raw) == value
+        held = json.loads(raw)
     except ValueError:
         return False
+    depth = len(variable[len(_ENV_PREFIX):].split("__"))
+    for part in loc[depth:]:
+        if not isinstance(held, dict) or str(part) not in held:
+            return held == value
+        held = held[str(part)]
+    return held == value
 
 
 def _environment_variable(loc: tuple[Any, ...]) -> str | None:
@@ -518,7 +525,9 @@ def _build(data: dict[str, Any], where: str) -> SemslamConfig:
         # a variable is blamed for a field only if it holds the value that failed; for a
         # section's cross-field check (its input the section) one of the section's is named
         failed = err.get("input")
-        if variable is not None and (isinstance(failed, dict) or _set_by(variable, failed)):
+        if variable is not None and (
+            isinstance(failed, dict) or _set_by(variable, failed, tuple(err["loc"]))
+        ):
             where = variable
         raise ConfigError(f"{where}: {field}: {message}") from None
 

@@ -252,6 +252,15 @@ def test_a_value_is_blamed_on_a_variable_only_if_the_variable_holds_it(
     with pytest.raises(ConfigError) as exc:
         load_config()
     _one_line(exc, "SEMSLAM_MAPPING__OPTIMIZER: mapping.optimizer")
+    monkeypatch.delenv("SEMSLAM_MAPPING__OPTIMIZER")
+    monkeypatch.setenv("SEMSLAM_MAPPING", '{"optimizer": "bogus"}')  # a section as JSON
+    with pytest.raises(ConfigError) as exc:
+        load_config()
+    _one_line(exc, "SEMSLAM_MAPPING: mapping.optimizer")
+    monkeypatch.setenv("SEMSLAM_MAPPING", '{"optimizer": "none"}')
+    with pytest.raises(ConfigError) as exc:
+        with_overrides(load_config(), mapping={"optimizer": "bogus"})
+    _one_line(exc, "configuration: mapping.optimizer")
 
 
 def test_a_config_that_never_ends_is_refused_without_filling_the_memory(
