@@ -221,7 +221,7 @@ def evaluate_trajectory(
           per status (absent without ``status``).
         - ``alignment``: ``[x, y, yaw_deg]`` of the transform applied (truth
           ≈ T * estimate), or None (not asked, or fewer than two distinct
-          evaluated positions).
+          evaluated positions: then ``alignment_skipped`` says so).
         - ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_p95_m``,
           ``ate_max_m``: of the position error ``|(dx, dy)|``.
         - ``yaw_rmse_deg``, ``yaw_p95_deg``, ``yaw_max_deg``: of ``|dyaw|``.
@@ -292,8 +292,12 @@ def evaluate_trajectory(
     if status is not None:
         names, counts = np.unique(np.asarray(status, dtype=str), return_counts=True)
         out["status_counts"] = {str(k): int(c) for k, c in zip(names, counts, strict=True)}
+    out["alignment"] = alignment
+    if align and alignment is None:  # asked for, but nothing to fit a rotation to
+        out["alignment_skipped"] = (
+            "fewer than two distinct evaluated positions: the errors are not aligned"
+        )
     out |= {
-        "alignment": alignment,
         "max_time_gap_s": float(max_time_gap),
         "ate_rmse_m": _rmse(ate),
         "ate_mean_m": _mean(ate),

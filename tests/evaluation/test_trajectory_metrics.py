@@ -264,6 +264,11 @@ def test_align_recovers_a_known_transform():
     np.testing.assert_allclose(exact["alignment"], [4.0, -1.5, -12.0], atol=1e-9)
     assert exact["ate_rmse_m"] < 1e-9 and exact["yaw_rmse_deg"] < 1e-9
     assert evaluate_trajectory(t, est, t, truth)["ate_rmse_m"] > 1.0
+    assert "alignment_skipped" not in exact
+    still = np.repeat(est[:1], len(t), axis=0)  # a car that never moves: nothing to fit
+    skipped = evaluate_trajectory(t, still, t, truth, align=True)
+    assert skipped["alignment"] is None and "not aligned" in skipped["alignment_skipped"]
+    assert "alignment_skipped" not in evaluate_trajectory(t, still, t, truth)
     # with noise and an anisotropic covariance turned with the estimate: NEES as unaligned
     cov = np.diag([0.01, 0.0025, 1e-4])
     noise = rng.multivariate_normal(np.zeros(3), cov, size=len(t))
