@@ -99,6 +99,8 @@ class MapMetrics:
         marking_endpoint_median_m: median over the end points of every mapped
             marking of the distance to the nearest true marking segment.
         marking_endpoint_p95_m: 95th percentile of those distances.
+        alignment_skipped: why no alignment was applied though one was asked for (fewer
+            than two distinct matched points); None otherwise.
     """
 
     match_radius_m: float
@@ -136,6 +138,7 @@ class MapMetrics:
     markings_mapped: int
     marking_endpoint_median_m: float
     marking_endpoint_p95_m: float
+    alignment_skipped: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON values in field order; NaN becomes None, ``alignment`` a list."""
@@ -413,12 +416,14 @@ def evaluate_map(
             raise ValueError(f"evaluate_map: slots_true_seen has IDs not in the truth: {unknown}")
         seen_mask = np.isin(ids, list(seen))
 
-    alignment = None
+    alignment, skipped = None, None
     if align:
         T = fit_map_alignment(estimate, truth, align_radius)
         if T is not None:
             estimate = transform_map(T, estimate)
             alignment = (float(T[0]), float(T[1]), math.degrees(float(T[2])))
+        else:
+            skipped = "fewer than two distinct matched points: the map is not aligned"
 
     slots = _slot_metrics(estimate, truth, match_radius, merge_radius, seen_mask)
     tags = _tag_metrics(estimate, truth)
@@ -431,6 +436,7 @@ def evaluate_map(
         **slots,
         **tags,
         **markings,
+        alignment_skipped=skipped,
     )
 
 

@@ -258,7 +258,8 @@ def test_small_offset_without_tags_or_labels_aligns_by_nearest_slots(truth):
 def test_empty_estimate_gives_zero_matches_and_none_metrics(truth):
     m = evaluate_map(SemanticMap(), truth, align=True)
     assert m.slots_matched == 0 and m.slots_mapped == 0 and m.missed_slots == len(truth.slots)
-    assert m.alignment is None
+    assert m.alignment is None and "not aligned" in m.alignment_skipped
+    assert evaluate_map(truth, truth).alignment_skipped is None  # not asked
     d = m.to_dict()
     for key in (
         "corner_rmse_m",
