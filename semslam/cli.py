@@ -37,6 +37,8 @@ class PresetName(StrEnum):
 
 def _fail(error: Exception) -> None:
     """One line on stderr for a known error (bad input, unwritable folder), exit code 2."""
+    if isinstance(error, BrokenPipeError):  # the reader of stdout left: click exits 1 quietly
+        raise error
     if isinstance(error, OSError) and error.filename:
         # a failed rename names the temporary file first and the target second
         message = f"{error.filename2 or error.filename}: {error.strerror or error}"

@@ -569,3 +569,18 @@ def test_a_terminal_that_cannot_show_a_path_does_not_crash_the_summary(tmp_path)
     )
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "ö.g2o").is_file()
+
+
+@pytest.mark.parametrize("args", [["dump-config"], ["--help"]])
+def test_a_closed_output_pipe_ends_quietly(args):
+    """`semslam dump-config | head -0`: exit 1 with nothing on stderr (click's way), as
+    every command does; dump-config used to report '[Errno 32] Broken pipe' as an error."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "semslam", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert proc.wait() in (0, 1) and b"Errno" not in err and b"Traceback" not in err
