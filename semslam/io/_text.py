@@ -21,7 +21,7 @@ def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
     """
     try:
         with Path(path).open("rb") as f:
-            data = f.read(MAX_TEXT_BYTES + 1)
+            data = _read_at_most(f, MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         raise error(f"{os.fspath(path)}: file not found") from None
     except IsADirectoryError:
@@ -36,6 +36,19 @@ def read_text(path: str | os.PathLike[str], error: type[SemslamError]) -> str:
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise error(f"{os.fspath(path)} line {line}: not UTF-8 text") from None
+
+
+def _read_at_most(f, limit: int) -> bytes:
+    """Up to ``limit`` bytes of ``f``, in chunks (``f.read(limit)`` would reserve ``limit``
+    bytes first, whatever the file's size)."""
+    chunks, total = [], 0
+    while total < limit:
+        chunk = f.read(min(1 << 24, limit - total))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        total += len(chunk)
+    return b"".join(chunks)
 
 
 def text_lines(text: str) -> list[str]:

@@ -109,8 +109,8 @@ def signals_deferred() -> Iterator[None]:
     finally:
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
-        for s in dict.fromkeys(caught):
-            signal.raise_signal(s)
+        if caught:  # one is enough: the first raised ends the block; SIGTERM outranks Ctrl-C
+            signal.raise_signal(signal.SIGTERM if signal.SIGTERM in caught else caught[0])
 
 
 def is_special_file(target: str | os.PathLike[str]) -> bool:
@@ -163,9 +163,10 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
             group.append((tmp, target))
             return
         os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+    except BaseException as exc:
+        if not (isinstance(exc, FileExistsError) and exc.filename == os.fspath(tmp)):
+            with contextlib.suppress(OSError):  # ours unless the O_EXCL open found it there
+                os.unlink(tmp)
         raise
     _fsync_folder(target.parent)
 

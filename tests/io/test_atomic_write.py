@@ -142,3 +142,39 @@ def test_a_pipe_is_never_replaced_by_a_file(tmp_path: Path) -> None:
         atomic_write_bytes(fifo, b"x")
     assert not fifo.is_file() and os.path.exists(fifo)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo"]
+
+
+def test_a_stranger_s_file_under_the_temporary_name_is_left_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import semslam.io.atomic as atomic
+
+    monkeypatch.setattr(atomic.secrets, "token_hex", lambda n: "deadbeef")
+    stranger = tmp_path / f".x.txt.{os.getpid()}.deadbeef.tmp"
+    stranger.write_text("not ours")
+    with pytest.raises(FileExistsError):
+        atomic_write_text(tmp_path / "x.txt", "new")
+    assert stranger.read_text() == "not ours" and not (tmp_path / "x.txt").exists()
+
+
+def test_sigterm_held_with_ctrl_c_is_the_one_raised_after_the_block() -> None:
+    import signal
+
+    from semslam.io.atomic import signals_deferred
+
+    arrived: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, _f: arrived.append(signum))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with signals_deferred():
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):
+                pass
+            assert arrived == []
+        for _ in range(1000):
+            pass
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    assert arrived == [signal.SIGTERM]  # exits 143, as a scheduler's stop asks

@@ -276,6 +276,19 @@ def test_a_config_that_never_ends_is_refused_without_filling_the_memory(
     _one_line(exc, "/dev/zero: larger than", "not a text file semslam reads")
 
 
+def test_the_size_cap_reserves_no_memory_up_front(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``f.read(cap)`` reserved the whole cap (1 GiB) for every file read; with a cap of a
+    terabyte a small file must still read."""
+    import semslam.io._text as text_module
+
+    monkeypatch.setattr(text_module, "MAX_TEXT_BYTES", 1 << 40)
+    path = tmp_path / "c.json"
+    path.write_text('{"mapping": {}}')
+    assert load_config(path).mapping == MappingConfig()
+
+
 def test_a_misspelt_section_in_a_semslam_variable_is_refused(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
