@@ -220,8 +220,13 @@ class MappingConfig(_Section):
     )
     tag_range_limit: float = Field(20.0, gt=0, description="tags farther than this are dropped, m")
     tag_conflict_distance: float = Field(
-        5.0, gt=0, le=MAX_GATE, description="a sighting placing its tag farther than this from "
-        "the tag's estimate is another tag under the same ID: reported, not used, m"
+        5.0, gt=0, description="a sighting placing its tag farther than this (plus "
+        "tag_conflict_per_m) from the tag's estimate is another tag under the same ID: "
+        "reported, not used, m"
+    )
+    tag_conflict_per_m: float = Field(
+        0.1, ge=0, le=1, description="drift allowed for per metre driven since the tag was "
+        "last seen (a loop closed on a tag after drift is kept)"
     )
     slot_corner_sigma_min: float = Field(0.02, gt=0, description="floor on corner sigma, m")
     id_confidence_high: float = Field(

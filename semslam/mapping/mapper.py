@@ -6,8 +6,10 @@ Follows TiEV (DESIGN.md) with the association made exact:
   odometry between keyframes from the CTRV integration of wheel speed and gyro
   with a covariance that grows with distance;
 - tags are trusted and associated by ID (relative Pose2, dropped beyond the range
-  limit); a sighting that places its tag more than ``tag_conflict_distance`` from the
-  tag's estimate (one ID printed twice) is counted in ``tag_conflicts`` and left out;
+  limit); a sighting that places its tag farther from the tag's estimate than
+  ``tag_conflict_distance`` plus ``tag_conflict_per_m`` of the distance driven since the tag
+  was last seen (one ID printed twice, not drift) is counted in ``tag_conflicts`` and left
+  out;
 - a slot observation's candidates are the nearest mapped slots within a gate plus,
   when its ID is confident, the slot holding that ID; one candidate becomes a
   native-style factor whose loss is a max-mixture with the null hypothesis,
@@ -213,6 +215,7 @@ class Mapper:
         self.tag_edges: list[tuple] = []  # (k, tag id, vTt, covariance)
         self.tag_mismatches: list[tuple] = []  # (k, tag id, family, size) refused
         self.tag_conflicts: list[tuple] = []  # (k, tag id, m from the tag) refused
+        self._odometer: list[float] = []  # metres driven (odometry) up to each keyframe
         self._marginal_fallbacks = 0  # slots, tags and lines whose marginal gtsam refused
         # (slots and tags then take the spread of their sightings; lines get no sigma)
         self.lines = LineLandmarks(
@@ -283,6 +286,8 @@ class Mapper:
 
     def _add_keyframe(self, t: float, pose: FloatArray, odometry) -> None:
         k = len(self.keyframe_times)
+        step = 0.0 if odometry is None else math.hypot(odometry[0][0], odometry[0][1])
+        self._odometer.append((self._odometer[-1] if self._odometer else 0.0) + step)
         self.keyframe_times.append(t)
         self.keyframe_poses.append(np.asarray(pose, dtype=float))
         if not self.use_graph:
@@ -364,12 +369,17 @@ class Mapper:
         key = T(tag.tag_id)
         if info["poses"]:
             known = self.graph.pose(key) if self.use_graph else info["poses"][0]
-            apart = math.hypot(mTt[0] - known[0], mTt[1] - known[1])
-            if apart > self.cfg.tag_conflict_distance:
+            last = info["poses"][-1]  # the estimate lags iSAM2's next update
+            apart = min(math.hypot(mTt[0] - known[0], mTt[1] - known[1]),
+                        math.hypot(mTt[0] - last[0], mTt[1] - last[1]))
+            driven = self._odometer[k] - self._odometer[info["last_keyframe"]]
+            if apart > self.cfg.tag_conflict_distance + self.cfg.tag_conflict_per_m * driven:
                 # the same ID printed twice, at two places: the sighting would drag the whole
-                # map (trusted tags have no null); the first place seen keeps the ID
+                # map (trusted tags have no null); the first place seen keeps the ID. Drift
+                # since the tag was last seen is allowed for: a loop closed on a tag is kept
                 self.tag_conflicts.append((k, tag.tag_id, apart))
                 return
+        info["last_keyframe"] = k
         info["heights"].append(tag.height)
         info["poses"].append(mTt)
         if not self.use_graph:
