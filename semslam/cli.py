@@ -285,7 +285,10 @@ def map_command(
             if sibling.is_dir():
                 raise SemslamError(f"-o {output}: {sibling}, written beside the map, is a folder")
         _refuse_drive_files(drive, [out, *sibling_paths(out)], output)
-        _refuse_inputs([out, *sibling_paths(out)], {"--config file": config}, output)
+        written = [p for p in sibling_paths(out) if not p.name.endswith(".config.json")]
+        # MAP.config.json is the config in force, written back: a re-run with the config
+        # the last run left there (`--config MAP.config.json`) replaces it by the same
+        _refuse_inputs([out, *written], {"--config file": config}, output)
         cfg = with_overrides(
             load_config(config), mapping={"optimizer": _value(optimizer), "robust": _value(robust)}
         )

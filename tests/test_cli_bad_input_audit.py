@@ -102,6 +102,11 @@ def test_no_output_replaces_the_config_or_graph_the_command_reads(small_drive, t
         result = _run(*args, "--no-progress")
         _fails(result, "would replace", "the --config file it reads")
     assert config.read_text() == '{"mapping": {}}'
+    again = tmp_path / "m.config.json"  # the config a map run left beside the map: re-run
+    again.write_text('{"mapping": {}}')
+    result = _run("map", small_drive, "-o", tmp_path / "m.json", "--config", again,
+                  "--no-progress")
+    assert result.exit_code == 0, result.output
     graph = tmp_path / "g.g2o"
     graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
     before = graph.read_text()

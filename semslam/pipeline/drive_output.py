@@ -73,7 +73,7 @@ def staged_drive_folder(out_dir: Path, error: type[SemslamError]) -> Iterator[Pa
     On any exception the temporary folder is removed and nothing at ``out_dir`` changes;
     a :class:`SemslamError` about a file in the temporary folder is re-worded to name
     the file's place in ``out_dir`` (the user never sees the temporary name) and to say
-    that nothing was written.
+    that nothing was written; an ``OSError``'s file name is moved there too.
     """
     out_dir = Path(out_dir).resolve()
     tmp = prepare_drive_folder(out_dir, error)
@@ -85,6 +85,11 @@ def staged_drive_folder(out_dir: Path, error: type[SemslamError]) -> Iterator[Pa
         if os.fspath(tmp) in message:
             message = message.replace(os.fspath(tmp), os.fspath(out_dir))
             exc.args = (f"{message} (nothing was written)",)
+        raise
+    except OSError as exc:  # a disk full or a permission: the file named as in out_dir
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc.filename, str) and exc.filename.startswith(os.fspath(tmp)):
+            exc.filename = os.fspath(out_dir) + exc.filename[len(os.fspath(tmp)):]
         raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
