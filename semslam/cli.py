@@ -190,19 +190,14 @@ def simulate(
     print_simulation_summary(summary)
 
 
-class MapOptimizer(StrEnum):
-    isam2 = "isam2"
-    none = "none"
+def _choices(name: str, *values: str) -> type[StrEnum]:
+    """An option's choices, each its own name."""
+    return StrEnum(name, {v: v for v in values})
 
 
-class MapRobust(StrEnum):
-    maxmix = "maxmix"
-    none = "none"
-
-
-class UpdateMode(StrEnum):
-    ekf = "ekf"
-    sigma = "sigma"
+MapOptimizer = _choices("MapOptimizer", "isam2", "none")
+MapRobust = _choices("MapRobust", "maxmix", "none")
+UpdateMode = _choices("UpdateMode", "ekf", "sigma")
 
 
 def _value(choice: StrEnum | None) -> str | None:
