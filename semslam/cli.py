@@ -190,14 +190,9 @@ def simulate(
     print_simulation_summary(summary)
 
 
-def _choices(name: str, *values: str) -> type[StrEnum]:
-    """An option's choices, each its own name."""
-    return StrEnum(name, {v: v for v in values})
-
-
-MapOptimizer = _choices("MapOptimizer", "isam2", "none")
-MapRobust = _choices("MapRobust", "maxmix", "none")
-UpdateMode = _choices("UpdateMode", "ekf", "sigma")
+MapOptimizer = StrEnum("MapOptimizer", "isam2 none")  # functional: each value its name
+MapRobust = StrEnum("MapRobust", "maxmix none")
+UpdateMode = StrEnum("UpdateMode", "ekf sigma")
 
 
 def _value(choice: StrEnum | None) -> str | None:
