@@ -810,6 +810,20 @@ def _exit_on_sigterm(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
+def _command_path(args: list[str]) -> str:
+    """``semslam`` and the (sub)commands that ``args`` start with (``semslam map``), for a
+    usage error click raised before it knew its command (an option missing its value)."""
+    command = typer.main.get_command(app)
+    path = ["semslam"]
+    for arg in args:
+        sub = getattr(command, "commands", {}).get(arg)
+        if sub is None:
+            break
+        path.append(arg)
+        command = sub
+    return " ".join(path)
+
+
 def run() -> None:
     """The console entry (`semslam`, `python -m semslam`): the commands, with a usage error
     (unknown command or option, missing argument, a value of the wrong type) as one line on
@@ -829,7 +843,7 @@ def run() -> None:
             code = 130
         elif hasattr(e, "format_message") and getattr(e, "exit_code", None) == 2:
             ctx = getattr(e, "ctx", None)
-            command = ctx.command_path if ctx is not None else "semslam"
+            command = ctx.command_path if ctx is not None else _command_path(sys.argv[1:])
             message = e.format_message().replace("Value error, ", "")  # typer's enum wording
             if message:  # empty: no arguments at all, the help is printed already
                 typer.echo(f"{command}: error: {message} (see {command} --help)", err=True)

@@ -432,7 +432,9 @@ def test_evaluate_trajectory_refuses_times_that_never_meet_the_truth(small_drive
      (["map", "d", "-o", "m.json", "--robust", "dcs"],  # named the config, not the option
       "semslam map: error: Invalid value for '--robust': 'dcs' is not one of 'maxmix', 'none'"),
      (["localize", "d", "--map", "m.json", "-o", "t.tum", "--update", "x"],
-      "semslam localize: error: Invalid value for '--update': 'x' is not one of 'ekf'")],
+      "semslam localize: error: Invalid value for '--update': 'x' is not one of 'ekf'"),
+     (["map", "d", "-o"],  # pointed at `semslam --help`
+      "semslam map: error: Option '-o' requires an argument. (see semslam map --help)")],
 )
 def test_usage_errors_are_one_line_through_the_console_entry(args, message):
     import subprocess
