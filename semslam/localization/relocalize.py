@@ -20,7 +20,8 @@ A wrong pose is far worse than none, so every step refuses rather than guesses.
    fused with the tags (``"tags+slots"``), or the tags stand alone (``"tags"``).
 3. **Slots alone** (no usable tag pose): every observed slot with
    ``label_confidence >= min_label_confidence`` whose label is in the map, paired with
-   each map slot carrying that label (a duplicated label is several hypotheses), gives
+   each map slot carrying that label (a duplicated label is several hypotheses; a label on
+   more than ``MAX_SLOTS_PER_LABEL`` map slots is not used), gives
    a pose by :func:`fit_se2`. Its support is the number of such labelled slots whose
    corners, moved by it, lie within ``inlier_distance`` of the corners of a map slot with
    their label (once per map slot: frames merged into one may see a slot twice).
@@ -71,6 +72,8 @@ DISTINCT_DISTANCE = 1.0  # slot hypotheses farther apart than this (m) ...
 DISTINCT_YAW = math.radians(10.0)  # ... or this (rad) are different poses
 COVARIANCE_FLOOR = np.diag([0.01**2, 0.01**2, math.radians(0.1) ** 2])  # added to slot fits
 NEAREST_MAP_SLOTS = 3  # map slots tried per observed slot around a tag pose
+MAX_SLOTS_PER_LABEL = 4  # a label painted on more map slots (a row letter, repeated per floor)
+# does not relocalize: it says little where the car is, and its pairs grow with the square
 
 
 @dataclass(frozen=True, eq=False)
@@ -217,7 +220,9 @@ class Relocalizer:
             code = self._label_code.setdefault(s.label, len(self._label_code))
             self._map_code[i] = code
             by_label.setdefault(code, []).append(i)
-        self._slots_of_label = {k: np.array(v, dtype=int) for k, v in by_label.items()}
+        self._slots_of_label = {  # a label on many slots says little and costs pairs^2
+            k: np.array(v, dtype=int) for k, v in by_label.items() if len(v) <= MAX_SLOTS_PER_LABEL
+        }
         self._tags: dict[tuple[TagFamily, int], list] = {}
         for t in semantic_map.tags:
             self._tags.setdefault((TagFamily(t.family), int(t.tag_id)), []).append(t)
@@ -361,7 +366,8 @@ class Relocalizer:
 
     def _slots_global(self, obs) -> _SlotFit | None:
         V, var, code, code_any, reads = obs
-        idx = np.flatnonzero(code >= 0)
+        idx = np.array([i for i in np.flatnonzero(code >= 0) if code[i] in self._slots_of_label],
+                       dtype=int)
         needed = self.min_slots
         if self.single_slot_reads > 0 and np.any(reads[idx] >= self.single_slot_reads):
             needed = 1

@@ -248,6 +248,30 @@ def test_exact_slots_give_the_exact_pose(world, reloc, exact_sensor):
     assert dp < 1e-9 and dy < 1e-9 and r.residual_rms_m < 1e-9
 
 
+def test_a_label_on_many_map_slots_does_not_relocalize(world, exact_sensor):
+    """A row letter painted on every slot (or numbers repeated per floor): it says little
+    where the car is, and its pairs grew with the square (a localize run 5x slower); a
+    label on up to MAX_SLOTS_PER_LABEL slots still gives its hypotheses."""
+    from semslam.localization.relocalize import MAX_SLOTS_PER_LABEL
+
+    mTv = _aisle_pose(world, 0.4, 0.3)
+    frame = replace(exact_sensor.observe(0.0, mTv), tags=())
+    seen = {o.label for o in frame.slots}
+    everywhere = replace(world.to_map(), tags=(), slots=tuple(
+        replace(s, label="P") if s.label not in seen else s for s in world.to_map().slots))
+    assert Relocalizer(everywhere).locate(frame) is not None  # the frame's own labels: unique
+    all_p = replace(everywhere, slots=tuple(replace(s, label="P") for s in everywhere.slots))
+    assert Relocalizer(all_p).locate(replace(frame, slots=tuple(
+        replace(o, label="P") for o in frame.slots))) is None
+    doubled = list(world.to_map().slots)
+    twin = next(i for i, s in enumerate(doubled) if s.label not in seen)
+    first = next(o.label for o in frame.slots)
+    doubled[twin] = replace(doubled[twin], label=first)  # one label on 2 <= 4 slots: kept
+    assert MAX_SLOTS_PER_LABEL >= 2
+    r = Relocalizer(replace(world.to_map(), tags=(), slots=tuple(doubled))).locate(frame)
+    assert r is not None and _errors(r, mTv)[0] < 1e-6
+
+
 def test_car_turned_by_180_degrees(world, reloc, exact_sensor):
     ahead = _aisle_pose(world, 0.6, 0.0, aisle=2)
     behind = ahead + np.array([0.0, 0.0, math.pi])
