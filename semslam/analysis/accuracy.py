@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from semslam.errors import ConfigError
-from semslam.geometry import FloatArray, clip_segment, rotation
+from semslam.geometry import FloatArray, rotation
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
 
@@ -373,21 +373,21 @@ def _frame(
     half = sensors.topview_half_m
     marking_sigma = model.marking_sigma if model.marking_sigma is not None else (
         sensors.marking_sigma)
-    for a, b in geometry.lines:
-        va, vb = (np.array([a, b]) - pose[:2]) @ R
-        clipped = clip_segment(va, vb, -half, half)
-        if clipped is None:
-            continue
-        ends = np.array(clipped, float).reshape(2, 2)
-        d = b - a
-        length = float(np.hypot(*d))
-        if length < 1e-6 or float(np.hypot(*(ends[1] - ends[0]))) < model.marking_min_length:
-            continue
-        n = np.array([-d[1], d[0]]) / length
-        for vE in ends:  # d(n . (t + R vE)) / d(x, y, yaw)
-            h = np.array([n[0], n[1], _yaw_row(n, R, vE)])
-            infos["lines"] += np.outer(h, h) / marking_sigma**2
-        counts["lines"] += 1
+    lines = _lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
+    if len(lines):
+        ends, keep = _clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
+                                    -half, half)
+        d = lines[:, 1] - lines[:, 0]
+        length = np.hypot(d[:, 0], d[:, 1])
+        visible = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
+        keep &= (length >= 1e-6) & (visible >= model.marking_min_length)
+        n = np.column_stack([-d[keep, 1], d[keep, 0]]) / length[keep, None]
+        # per end, d(n . (t + R vE)) / d(x, y, yaw): (n_x, n_y, n . (J R vE))
+        h = np.concatenate([np.repeat(n[:, None, :], 2, axis=1),
+                            _yaw_row(n[:, None, :], R, ends[keep])[..., None]],
+                           axis=2).reshape(-1, 3)
+        infos["lines"] = h.T @ h / marking_sigma**2
+        counts["lines"] = int(keep.sum())
     ps, pt, pm = (sensors.slot_detection_rate, sensors.tag_detection_rate,
                   sensors.marking_detection_rate)
     use_lines, lines_without_slots = 1.0, 1.0
@@ -404,6 +404,38 @@ def _frame(
         elif only_lines >= 0.5:
             floor[:2, :2] = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
     return _Frame(infos["slots"], infos["tags"], infos["lines"], counts, use_lines, floor)
+
+
+def _clip_segments(
+    a: FloatArray, b: FloatArray, lo: float, hi: float
+) -> tuple[FloatArray, np.ndarray]:
+    """:func:`~semslam.geometry.clip_segment` of many segments at once: the clipped end
+    points (K, 2, 2) and which segments meet the square [lo, hi]^2 (K,)."""
+    d = b - a
+    t0, t1 = np.zeros(len(a)), np.ones(len(a))
+    keep = np.ones(len(a), dtype=bool)
+    for k in range(2):
+        for p, q in ((-d[:, k], a[:, k] - lo), (d[:, k], hi - a[:, k])):
+            flat = np.abs(p) < 1e-12
+            keep &= ~(flat & (q < 0))
+            t = q / np.where(flat, 1.0, p)
+            t0 = np.where(~flat & (p < 0), np.maximum(t0, t), t0)
+            t1 = np.where(~flat & (p > 0), np.minimum(t1, t), t1)
+    keep &= t0 <= t1
+    return np.stack([a + d * t0[:, None], a + d * t1[:, None]], axis=1), keep
+
+
+def _lines_within(lines: FloatArray, point: FloatArray, reach: float) -> FloatArray:
+    """The segments (L, 2, 2) that come within ``reach`` of ``point``: the only ones that can
+    cross the square view around it (``reach`` its circumradius). One vectorised test,
+    so a map of thousands of painted lines costs no Python loop over all of them."""
+    if not len(lines):
+        return lines
+    a, d = lines[:, 0], lines[:, 1] - lines[:, 0]
+    t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.maximum(
+        np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
+    gap = a + t[:, None] * d - point
+    return lines[np.einsum("ij,ij->i", gap, gap) <= reach * reach]
 
 
 def _expected_information(frame: _Frame, sensors: SensorModel) -> FloatArray:
@@ -486,10 +518,12 @@ def tag_information(
     return info, seen.sum(axis=1)
 
 
-def _yaw_row(n: FloatArray, R: FloatArray, vE: FloatArray) -> float:
-    """d(n . R(yaw) vE) / d(yaw) = n . (J R vE), J the 90 deg rotation."""
-    w = R @ vE
-    return float(n[0] * -w[1] + n[1] * w[0])
+def _yaw_row(n: FloatArray, R: FloatArray, vE: FloatArray) -> FloatArray:
+    """d(n . R(yaw) vE) / d(yaw) = n . (J R vE), J the 90 deg rotation; ``n`` and ``vE``
+    (..., 2) broadcast."""
+    w = np.asarray(vE, float) @ R.T
+    n = np.asarray(n, float)
+    return n[..., 0] * -w[..., 1] + n[..., 1] * w[..., 0]
 
 
 def position_sigma(cov: FloatArray) -> float:
