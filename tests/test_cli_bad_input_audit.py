@@ -591,3 +591,12 @@ def test_a_closed_output_pipe_ends_quietly(args):
     err = proc.stderr.read()
     proc.stderr.close()
     assert proc.wait() in (0, 1) and b"Errno" not in err and b"Traceback" not in err
+
+
+def test_plan_tags_refuses_a_route_far_from_the_map(small_drive, tmp_path):
+    """A route given in another frame (5 km off) planned tags as for an empty map."""
+    route = _route(tmp_path / "far.tum", [[5000, 5000], [5010, 5000], [5020, 5000]])
+    result = _run("plan-tags", small_drive / "world.json", "--route", route,
+                  "-o", tmp_path / "plan", "--count", "2")
+    _fails(result, "--route", "comes no nearer than", "give it in the map's frame")
+    assert not (tmp_path / "plan").exists()

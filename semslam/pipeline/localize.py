@@ -60,23 +60,31 @@ def parse_init(text: str | None) -> np.ndarray | None:
     return np.array(values)
 
 
+def distance_from_landmarks(points: np.ndarray, semantic_map) -> tuple[float, str] | None:
+    """The least distance (m) of ``points`` (N, 2) from the box around the map's landmarks,
+    and the box as text; None for a map without landmarks."""
+    corners = [c for s in semantic_map.slots for c in s.corners]
+    corners += [t.mTt[:2] for t in semantic_map.tags]
+    corners += [p for m in semantic_map.markings for p in (m.a, m.b)]
+    if not corners:
+        return None
+    xy = np.asarray(corners, dtype=float).reshape(-1, 2)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    outside = np.maximum(np.maximum(lo - points, points - hi), 0.0)
+    box = f"x {lo[0]:.1f}..{hi[0]:.1f} m, y {lo[1]:.1f}..{hi[1]:.1f} m"
+    return float(np.hypot(outside[:, 0], outside[:, 1]).min()), box
+
+
 def check_init_near_map(pose: np.ndarray, semantic_map, map_path: Path) -> None:
     """Refuse an initial pose more than :data:`MAX_INIT_FROM_MAP` from the box around the
     map's landmarks (a pose given in another frame; the filter would only coast away from
     it). A map without landmarks takes any pose."""
-    points = [c for s in semantic_map.slots for c in s.corners]
-    points += [t.mTt[:2] for t in semantic_map.tags]
-    points += [p for m in semantic_map.markings for p in (m.a, m.b)]
-    if not points:
-        return
-    xy = np.asarray(points, dtype=float).reshape(-1, 2)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    distance = float(np.hypot(*np.maximum(np.maximum(lo - pose[:2], pose[:2] - hi), 0.0)))
-    if distance > MAX_INIT_FROM_MAP:
+    found = distance_from_landmarks(pose[None, :2], semantic_map)
+    if found is not None and found[0] > MAX_INIT_FROM_MAP:
         raise DriveError(
-            f"--init: {pose[0]:g}, {pose[1]:g} is {distance:.0f} m from the landmarks of "
-            f"{map_path} (x {lo[0]:.1f}..{hi[0]:.1f} m, y {lo[1]:.1f}..{hi[1]:.1f} m); "
-            "give a pose in the map's frame"
+            f"--init: {pose[0]:g}, {pose[1]:g} is {found[0]:.0f} m from the landmarks of "
+            f"{map_path} ({found[1]}); give a pose in the map's frame"
         )
 
 

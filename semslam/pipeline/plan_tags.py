@@ -84,6 +84,7 @@ def plan_tags(
     )
     from semslam.io import load_map
     from semslam.io.atomic import atomic_group, atomic_write_bytes, atomic_write_text
+    from semslam.pipeline.localize import MAX_INIT_FROM_MAP, distance_from_landmarks
     from semslam.plots import tag_plan_figure
     from semslam.types import SemanticMap
 
@@ -106,6 +107,18 @@ def plan_tags(
     t, poses = _read_route(route)
     mapping = None if mapping_route is None else _read_route(mapping_route)
     semantic_map = load_map(map_path)
+    for name, path, route_poses in (("--route", route, poses),
+                                    ("--mapping-route", mapping_route, mapping)):
+        if route_poses is None:
+            continue
+        if name == "--mapping-route":
+            route_poses = route_poses[1]
+        found = distance_from_landmarks(route_poses[:, :2], semantic_map)
+        if found is not None and found[0] > MAX_INIT_FROM_MAP:
+            raise ConfigError(
+                f"{name} {os.fspath(path)}: comes no nearer than {found[0]:.0f} m to the "
+                f"landmarks of {os.fspath(map_path)} ({found[1]}); give it in the map's frame"
+            )
     if not keep_existing:
         semantic_map = SemanticMap(semantic_map.slots, (), semantic_map.markings)
     poses, t = resample_route(poses, t, 1.0)
