@@ -223,6 +223,8 @@ class Relocalizer:
         self._slots_of_label = {  # a label on many slots says little and costs pairs^2
             k: np.array(v, dtype=int) for k, v in by_label.items() if len(v) <= MAX_SLOTS_PER_LABEL
         }
+        # labels left out for being on more than MAX_SLOTS_PER_LABEL slots (said when lost)
+        self.repeated_labels = len(by_label) - len(self._slots_of_label)
         self._tags: dict[tuple[TagFamily, int], list] = {}
         for t in semantic_map.tags:
             self._tags.setdefault((TagFamily(t.family), int(t.tag_id)), []).append(t)

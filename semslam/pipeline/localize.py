@@ -104,6 +104,7 @@ def localize_drive(
     from semslam.io.atomic import atomic_group
     from semslam.io.track_csv import Track, write_track_csv
     from semslam.localization.localizer import Localizer
+    from semslam.localization.relocalize import MAX_SLOTS_PER_LABEL
 
     given_init = None if init is None else parse_init(init)  # bad --init: fail before any work
     semantic_map = load_map(map_path)
@@ -127,9 +128,12 @@ def localize_drive(
     posed = [e for e in estimates if np.all(np.isfinite(e.pose))]
     track_path = output.with_suffix(".csv")
     if not posed:
+        repeated = localizer.relocalizer.repeated_labels
+        hint = (f" ({repeated} of its slot labels are on more than {MAX_SLOTS_PER_LABEL} slots "
+                "each, too many to tell where the car is)" if repeated else "")
         raise DriveError(
             f"{drive_folder}: no pose was found in any frame ({len(frames)} frames) against "
-            f"{map_path}; {output} not written"
+            f"{map_path}{hint}; {output} not written"
         )
     t = np.array([e.t for e in posed])
     poses = np.array([e.pose for e in posed])

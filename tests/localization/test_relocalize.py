@@ -261,6 +261,8 @@ def test_a_label_on_many_map_slots_does_not_relocalize(world, exact_sensor):
         replace(s, label="P") if s.label not in seen else s for s in world.to_map().slots))
     assert Relocalizer(everywhere).locate(frame) is not None  # the frame's own labels: unique
     all_p = replace(everywhere, slots=tuple(replace(s, label="P") for s in everywhere.slots))
+    assert Relocalizer(all_p).repeated_labels == 1  # said when no pose is found
+    assert Relocalizer(world.to_map()).repeated_labels == 0
     assert Relocalizer(all_p).locate(replace(frame, slots=tuple(
         replace(o, label="P") for o in frame.slots))) is None
     doubled = list(world.to_map().slots)
