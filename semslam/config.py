@@ -27,7 +27,7 @@ from pydantic import (
 from pydantic_settings import BaseSettings, EnvSettingsSource, SettingsConfigDict, SettingsError
 
 from semslam.errors import ConfigError
-from semslam.io._json import first_line, loads
+from semslam.io._json import parse_json
 from semslam.io._text import read_text
 
 MAX_SETTING = 1e3
@@ -428,12 +428,7 @@ def load_config(path: Path | None = None) -> SemslamConfig:
     SEMSLAM_ variables."""
     data: dict[str, Any] = {}
     if path is not None:
-        try:
-            data = loads(read_text(path, ConfigError))
-        except json.JSONDecodeError as e:
-            raise ConfigError(f"{path} line {e.lineno}: not valid JSON ({e.msg})") from None
-        except (ValueError, RecursionError) as e:  # a key twice, an integer of 5000 digits
-            raise ConfigError(f"{path}: not valid JSON ({first_line(e)})") from None
+        data = parse_json(read_text(path, ConfigError), os.fspath(path), ConfigError)
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: a config file holds one JSON object")
     where = str(path) if path is not None else "configuration"

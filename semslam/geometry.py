@@ -127,6 +127,25 @@ def clip_segment(a: ArrayLike, b: ArrayLike, lo: float, hi: float):
     return a + d * t0, a + d * t1
 
 
+def clip_segments(
+    a: FloatArray, b: FloatArray, lo: float, hi: float
+) -> tuple[FloatArray, np.ndarray]:
+    """:func:`clip_segment` of many segments at once: the clipped end
+    points (K, 2, 2) and which segments meet the square [lo, hi]^2 (K,)."""
+    d = b - a
+    t0, t1 = np.zeros(len(a)), np.ones(len(a))
+    keep = np.ones(len(a), dtype=bool)
+    for k in range(2):
+        for p, q in ((-d[:, k], a[:, k] - lo), (d[:, k], hi - a[:, k])):
+            flat = np.abs(p) < 1e-12
+            keep &= ~(flat & (q < 0))
+            t = q / np.where(flat, 1.0, p)
+            t0 = np.where(~flat & (p < 0), np.maximum(t0, t), t0)
+            t1 = np.where(~flat & (p > 0), np.minimum(t1, t), t1)
+    keep &= t0 <= t1
+    return np.stack([a + d * t0[:, None], a + d * t1[:, None]], axis=1), keep
+
+
 def rotation_variance(points: ArrayLike, covariance: ArrayLike) -> float:
     """Variance (rad^2) of the rotation of a rigid set of 2D ``points`` (N, 2) about their
     centroid, fitted by least squares to the points, from the points' joint covariance

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from semslam.errors import ConfigError
-from semslam.geometry import FloatArray, rotation
+from semslam.geometry import FloatArray, clip_segments, rotation
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
 
@@ -375,7 +375,7 @@ def _frame(
         sensors.marking_sigma)
     lines = _lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
     if len(lines):
-        ends, keep = _clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
+        ends, keep = clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
                                     -half, half)
         d = lines[:, 1] - lines[:, 0]
         length = np.hypot(d[:, 0], d[:, 1])
@@ -404,25 +404,6 @@ def _frame(
         elif only_lines >= 0.5:
             floor[:2, :2] = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
     return _Frame(infos["slots"], infos["tags"], infos["lines"], counts, use_lines, floor)
-
-
-def _clip_segments(
-    a: FloatArray, b: FloatArray, lo: float, hi: float
-) -> tuple[FloatArray, np.ndarray]:
-    """:func:`~semslam.geometry.clip_segment` of many segments at once: the clipped end
-    points (K, 2, 2) and which segments meet the square [lo, hi]^2 (K,)."""
-    d = b - a
-    t0, t1 = np.zeros(len(a)), np.ones(len(a))
-    keep = np.ones(len(a), dtype=bool)
-    for k in range(2):
-        for p, q in ((-d[:, k], a[:, k] - lo), (d[:, k], hi - a[:, k])):
-            flat = np.abs(p) < 1e-12
-            keep &= ~(flat & (q < 0))
-            t = q / np.where(flat, 1.0, p)
-            t0 = np.where(~flat & (p < 0), np.maximum(t0, t), t0)
-            t1 = np.where(~flat & (p > 0), np.minimum(t1, t), t1)
-    keep &= t0 <= t1
-    return np.stack([a + d * t0[:, None], a + d * t1[:, None]], axis=1), keep
 
 
 def _lines_within(lines: FloatArray, point: FloatArray, reach: float) -> FloatArray:

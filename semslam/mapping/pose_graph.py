@@ -382,13 +382,13 @@ def optimize_pose_graph(
             "earlier pose (in id order); use schedule='batch'"
         )
 
-    def solve(chosen: str) -> PoseGraphResult:
+    def solve(which: str) -> PoseGraphResult:
         solver = _Solver(
             problem, gate_probability, cluster_gap, max_rounds, max_iterations,
             relinearize_threshold,
         )
-        values = solver.batch() if chosen == "batch" else solver.incremental()
-        return solver.result(values, chosen, start)
+        values = solver.batch() if which == "batch" else solver.incremental()
+        return solver.result(values, which, start)
 
     try:
         return solve(chosen)

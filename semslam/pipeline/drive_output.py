@@ -79,20 +79,13 @@ def staged_drive_folder(out_dir: Path, error: type[SemslamError]) -> Iterator[Pa
     tmp = prepare_drive_folder(out_dir, error)
     try:
         yield tmp
-    except SemslamError as exc:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
-        message = str(exc)
-        if os.fspath(tmp) in message:
-            message = message.replace(os.fspath(tmp), os.fspath(out_dir))
-            exc.args = (f"{message} (nothing was written)",)
-        raise
-    except OSError as exc:  # a disk full or a permission: the file named as in out_dir
-        shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(exc.filename, str) and exc.filename.startswith(os.fspath(tmp)):
-            exc.filename = os.fspath(out_dir) + exc.filename[len(os.fspath(tmp)):]
-        raise
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        staged, final = os.fspath(tmp), os.fspath(out_dir)
+        if isinstance(exc, SemslamError) and staged in str(exc):
+            exc.args = (f"{str(exc).replace(staged, final)} (nothing was written)",)
+        elif isinstance(exc, OSError) and str(exc.filename).startswith(staged):
+            exc.filename = final + exc.filename[len(staged):]  # a disk full, a permission
         raise
     commit_drive_folder(tmp, out_dir)
 

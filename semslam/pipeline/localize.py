@@ -61,18 +61,19 @@ def parse_init(text: str | None) -> np.ndarray | None:
 
 
 def distance_from_landmarks(points: np.ndarray, semantic_map) -> tuple[float, str] | None:
-    """The least distance (m) of ``points`` (N, 2) from the box around the map's landmarks,
-    and the box as text; None for a map without landmarks."""
-    corners = [c for s in semantic_map.slots for c in s.corners]
-    corners += [t.mTt[:2] for t in semantic_map.tags]
-    corners += [p for m in semantic_map.markings for p in (m.a, m.b)]
-    if not corners:
+    """The least distance (m) of ``points`` (N, 2) from the box around the map's landmarks
+    (:meth:`~semslam.analysis.accuracy.MapGeometry.bounds`), and the box as text; None for
+    a map without landmarks."""
+    from semslam.analysis.accuracy import MapGeometry
+
+    geometry = MapGeometry(semantic_map)
+    if not (len(geometry.corners) or len(geometry.tags) or len(geometry.lines)):
         return None
-    xy = np.asarray(corners, dtype=float).reshape(-1, 2)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    x0, y0, x1, y1 = geometry.bounds(margin=0.0)
+    lo, hi = np.array([x0, y0]), np.array([x1, y1])
     points = np.asarray(points, dtype=float).reshape(-1, 2)
     outside = np.maximum(np.maximum(lo - points, points - hi), 0.0)
-    box = f"x {lo[0]:.1f}..{hi[0]:.1f} m, y {lo[1]:.1f}..{hi[1]:.1f} m"
+    box = f"x {x0:.1f}..{x1:.1f} m, y {y0:.1f}..{y1:.1f} m"
     return float(np.hypot(outside[:, 0], outside[:, 1]).min()), box
 
 

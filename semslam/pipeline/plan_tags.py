@@ -107,12 +107,11 @@ def plan_tags(
     t, poses = _read_route(route)
     mapping = None if mapping_route is None else _read_route(mapping_route)
     semantic_map = load_map(map_path)
+    mapping_poses = None if mapping is None else mapping[1]
     for name, path, route_poses in (("--route", route, poses),
-                                    ("--mapping-route", mapping_route, mapping)):
+                                    ("--mapping-route", mapping_route, mapping_poses)):
         if route_poses is None:
             continue
-        if name == "--mapping-route":
-            route_poses = route_poses[1]
         found = distance_from_landmarks(route_poses[:, :2], semantic_map)
         if found is not None and found[0] > MAX_INIT_FROM_MAP:
             raise ConfigError(

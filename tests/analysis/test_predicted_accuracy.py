@@ -131,14 +131,14 @@ def test_tag_information_uses_the_tag_measurements_jacobian():
 def test_the_vectorised_line_clip_and_reach_agree_with_the_scalar_clip():
     """Painted lines are clipped to the view all at once (a Python loop over thousands of
     lines took minutes per grid); the same ends and the same lines as clip_segment."""
-    from semslam.analysis.accuracy import _clip_segments, _lines_within
-    from semslam.geometry import clip_segment
+    from semslam.analysis.accuracy import _lines_within
+    from semslam.geometry import clip_segment, clip_segments
 
     rng = np.random.default_rng(4)
     a, b = rng.uniform(-12, 12, (500, 2)), rng.uniform(-12, 12, (500, 2))
     b[:50, 0] = a[:50, 0]  # vertical ones
     b[50:60] = a[50:60]  # points
-    ends, keep = _clip_segments(a, b, -5.0, 5.0)
+    ends, keep = clip_segments(a, b, -5.0, 5.0)
     for k in range(len(a)):
         want = clip_segment(a[k], b[k], -5.0, 5.0)
         assert keep[k] == (want is not None), k
