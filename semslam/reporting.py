@@ -84,9 +84,26 @@ def print_map_summary(summary: MapSummary, console: Console | None = None) -> No
         ))
     if stats.get("marginal_fallbacks"):  # gtsam refused their covariance: a rough one instead
         rows.append(("covariances not from the graph", str(stats["marginal_fallbacks"])))
+    reason = nothing_mapped_reason(summary)
+    if reason:
+        rows.append(("nothing mapped", reason))
     for k, v in rows:
         table.add_row(k, v)
     console.print(table)
+
+
+def nothing_mapped_reason(summary: MapSummary) -> str | None:
+    """Why a map holds no slot and no tag, in words, or None when it holds some."""
+    if summary.slots or summary.tags:
+        return None
+    stats = summary.statistics
+    if stats.get("keyframes", 0) <= 1:
+        return ("the car never moved a keyframe step (mapping.keyframe_distance / "
+                "keyframe_angle_deg); slots are confirmed over several keyframes")
+    if not stats.get("slot_observations"):
+        return "the observations hold no slot or tag"
+    return (f"no slot was seen from enough keyframes to be confirmed "
+            f"({stats.get('pooled', 0)} sightings left in the pool)")
 
 
 def print_localize_summary(summary, console: Console | None = None) -> None:

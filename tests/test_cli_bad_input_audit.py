@@ -600,3 +600,17 @@ def test_plan_tags_refuses_a_route_far_from_the_map(small_drive, tmp_path):
                   "-o", tmp_path / "plan", "--count", "2")
     _fails(result, "--route", "comes no nearer than", "give it in the map's frame")
     assert not (tmp_path / "plan").exists()
+
+
+def test_a_drive_that_stands_still_says_why_its_map_is_empty(small_drive, tmp_path):
+    """Found by fuzzing: a car that never moved mapped nothing without a word."""
+    drive = tmp_path / "standing"
+    shutil.copytree(small_drive, drive)
+    odometry = (drive / "odometry.csv").read_text().splitlines()
+    t = [line.split(",")[0] for line in odometry[1:]]
+    (drive / "odometry.csv").write_text(
+        "\n".join([odometry[0], *(f"{ti},0.0,0.0" for ti in t)]) + "\n"
+    )
+    result = _run("map", drive, "-o", tmp_path / "m.json", "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert "nothing mapped" in result.output and "never moved" in result.output
