@@ -406,3 +406,43 @@ def test_declared_own_and_shared_errors_set_the_corner_covariances_not_the_map(
     too_large = _map(small, _declaring(small.noisy, 0.3, (0.05,) * 4, (0.01,) * 4))
     for a, b in zip(too_large.map.slots, plain.map.slots, strict=True):
         np.testing.assert_allclose(a.corner_covariances, b.corner_covariances)
+
+
+def test_a_long_standstill_costs_each_frame_only_its_own_odometry(small, monkeypatch):
+    """Found by fuzzing: each frame integrated the odometry from the last keyframe, so a car
+    standing still (no new keyframe) cost each frame all the samples since it stopped. The
+    frames are those of ``small`` with 60 s of standing at 10 Hz put in front."""
+    import semslam.mapping.odometry as odometry
+
+    rec = small.record
+    stand = 60.0
+    t = np.concatenate([np.arange(0.0, stand, 0.02), np.asarray(rec.t) + stand])
+    speed = np.concatenate([np.zeros(int(stand / 0.02)), rec.odo_speed])
+    rate = np.concatenate([np.zeros(int(stand / 0.02)), rec.odo_yaw_rate])
+    frames = [FrameObservations(t=float(s)) for s in np.arange(0.0, stand, 0.1)] + [
+        dataclasses.replace(f, t=f.t + stand) for f in small.noisy
+    ]
+    integrated = []
+    segment = odometry._segment
+    monkeypatch.setattr(
+        odometry, "_segment",
+        lambda *a: integrated.append(len((s := segment(*a))[0])) or s,  # type: ignore[func-returns-value]
+    )
+    mapper = Mapper(MappingConfig(), small.frame_poses[0], t, speed, rate)
+    keyframes = [mapper.add_frame(f) for f in frames]
+    assert sum(integrated) < 4 * len(t)  # linear: about one pass per use (frame, keyframe)
+    assert sum(keyframes[: int(stand / 0.1)]) == 1  # standing: the first frame only
+    # the same keyframes as integrating each frame from its keyframe, as before
+    expected, last = [], None
+    for f in frames:
+        if last is None:
+            expected.append(True)
+            last = f.t
+            continue
+        delta, _ = odometry.odometry_between(t, speed, rate, last, f.t, 0.1, 0.01, 0.01)
+        cfg = MappingConfig()
+        step = (math.hypot(delta[0], delta[1]) >= cfg.keyframe_distance
+                or abs(math.degrees(delta[2])) >= cfg.keyframe_angle_deg)
+        expected.append(step)
+        last = f.t if step else last
+    assert keyframes == expected
