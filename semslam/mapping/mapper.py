@@ -286,7 +286,7 @@ class Mapper:
         """Pose (x, y, yaw) at ``t`` in the last keyframe's frame, integrated on from the
         previous frame, so a car standing still for minutes (no new keyframe) costs each
         frame only its own odometry samples (integrating from the keyframe every frame made
-        a 4-minute standstill 73 s of mapping). Arcs of one held sample compose exactly, so
+        a 4-minute standstill 35 s of mapping). Arcs of one held sample compose exactly, so
         this is the keyframe-to-``t`` integration up to rounding."""
         t_last, last = self._since_keyframe
         delta = compose(last, pose_between(*self.odo, t_last, t))
