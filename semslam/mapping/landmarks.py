@@ -219,7 +219,7 @@ class SlotLandmarks:
         return pairs
 
 
-@dataclass
+@dataclass(eq=False)
 class PooledSlot:
     """A slot seen too few times to be a landmark: the map-frame corners of each sighting
     and the sightings themselves (keyframe key, observation index in the audit)."""
@@ -234,33 +234,55 @@ class PooledSlot:
         return np.mean(self.corners, axis=0)
 
 
+_KIND_CODES = {kind: code for code, kind in enumerate(SlotKind)}
+
+
 class SlotPool:
-    """Tentative slots; one becomes a landmark after M consistent sightings (TiEV)."""
+    """Tentative slots; one becomes a landmark after M consistent sightings (TiEV).
+
+    The pooled slots' mean corners are kept stacked, (N, 4, 2) map frame, so a sighting
+    is compared with all of them at once: false detections fill the pool, and a pool of
+    N costs one array operation per sighting, not N (with nine false slots for every
+    true one the pool holds hundreds)."""
 
     def __init__(self, radius: float, max_age: int) -> None:
         self.radius, self.max_age = radius, max_age
         self.items: list[PooledSlot] = []
+        self._means = np.empty((0, 4, 2))
+        self._kinds = np.empty(0, int)  # index into SlotKind
 
     def add(self, corners: FloatArray, kind: SlotKind, sighting: int, keyframe: int) -> PooledSlot:
-        """Put a sighting in the pool; returns the pooled slot it joined (or started)."""
-        best, best_d = None, self.radius
-        for item in self.items:
-            if item.kind != kind:
-                continue
-            d = float(mean_corner_distance(corners, item.mean_corners[None])[0])
-            if d < best_d:
-                best, best_d = item, d
-        if best is None:
+        """Put a sighting in the pool: it joins the pooled slot of its kind whose mean
+        corners are nearest (mean corner distance, the first on a tie) if that is within
+        ``radius``, else starts one. Returns the pooled slot it joined (or started)."""
+        corners = np.array(corners, float)
+        d = mean_corner_distance(corners, self._means)
+        d[self._kinds != _KIND_CODES[kind]] = np.inf
+        nearest = int(np.argmin(d)) if len(d) else -1
+        if nearest >= 0 and d[nearest] < self.radius:
+            best = self.items[nearest]
+        else:
             best = PooledSlot([], [], kind, keyframe)
             self.items.append(best)
-        best.corners.append(np.array(corners))
+            self._kinds = np.append(self._kinds, _KIND_CODES[kind])
+            self._means = np.concatenate([self._means, corners[None]])
+            nearest = len(self.items) - 1
+        best.corners.append(corners)
         best.sightings.append(sighting)
         best.last_keyframe = keyframe
+        self._means[nearest] = best.mean_corners
         return best
 
     def remove(self, item: PooledSlot) -> None:
-        self.items.remove(item)
+        self._keep([s is not item for s in self.items])
 
     def expire(self, keyframe: int) -> None:
         """Forget pooled slots not seen for ``max_age`` keyframes."""
-        self.items = [s for s in self.items if keyframe - s.last_keyframe <= self.max_age]
+        self._keep([keyframe - s.last_keyframe <= self.max_age for s in self.items])
+
+    def _keep(self, keep: list[bool]) -> None:
+        if all(keep):
+            return
+        self.items = [s for s, k in zip(self.items, keep, strict=True) if k]
+        self._kinds = self._kinds[np.asarray(keep, bool)]
+        self._means = self._means[np.asarray(keep, bool)]
