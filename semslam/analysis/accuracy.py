@@ -561,6 +561,89 @@ def route_floors(
     return _route_frames(geometry, poses, sensors, model)[2]
 
 
+class RouteFilter:
+    """The filter of :func:`filter_route` one pose at a time, so a caller can restart it
+    anywhere along the route from a state it kept.
+
+    A state is the (n, n) covariance of x, y (m), yaw (rad) in the map frame and, for a
+    grade that estimates them (``n`` 5), the wheel scale and the gyro bias (rad/s).
+    """
+
+    def __init__(
+        self,
+        poses: FloatArray,
+        times: FloatArray,
+        grade: OdometryGrade = GRADES["automotive"],
+        floors: FloatArray | None = None,
+    ) -> None:
+        self.poses = np.asarray(poses, float).reshape(-1, 3)
+        self.times = np.asarray(times, float).reshape(-1)
+        self.grade, self.floors = grade, floors
+        self.n = 5 if grade.calibrated else 3
+        self._sv2, self._sw2 = grade.speed_sigma**2, math.radians(grade.rate_sigma_deg) ** 2
+        self._walk2 = grade.position_walk**2
+        self._calibration_walk2 = (
+            np.array([grade.scale_walk, math.radians(grade.bias_walk_deg)]) ** 2
+        )
+
+    def start(self, info: FloatArray) -> FloatArray:
+        """The state at the first pose from its information ``info`` (3, 3): the frame's
+        own covariance (or 1 m / 5 deg if it has none), the heading never better than the
+        grade's."""
+        grade = self.grade
+        first = single_frame_covariance(info)
+        P = np.zeros((self.n, self.n))
+        P[:3, :3] = (
+            first if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
+        )
+        P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
+        if grade.calibrated:
+            P[3, 3] = grade.scale_sigma**2
+            P[4, 4] = math.radians(grade.bias_sigma_deg) ** 2
+        return P
+
+    def step(self, P: FloatArray, k: int, info: FloatArray) -> FloatArray:
+        """The state at pose ``k`` (k >= 1) from the state ``P`` at pose ``k - 1`` and the
+        information ``info`` (3, 3) of pose ``k``'s frame (see :func:`filter_route`)."""
+        poses, grade = self.poses, self.grade
+        dt = max(float(self.times[k] - self.times[k - 1]), 1e-6)
+        step = poses[k, :2] - poses[k - 1, :2]
+        c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
+        F = np.eye(self.n)
+        F[0, 2], F[1, 2] = -step[1], step[0]
+        if grade.calibrated:
+            F[:2, 3] = -step  # the wheels over-read by the scale: the car went less far
+            F[2, 4] = -dt  # the gyro over-reads by the bias: the car turned less
+        P = F @ P @ F.T
+        P[:2, :2] += self._sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]])
+        if self._walk2:
+            P[:2, :2] += self._walk2 * dt * np.eye(2)
+        P[2, 2] += self._sw2 * dt
+        if grade.calibrated:
+            P[3:, 3:] += np.diag(self._calibration_walk2 * dt)
+        if info.any():
+            full = np.zeros((self.n, self.n))
+            full[:3, :3] = info
+            P = np.linalg.inv(np.linalg.inv(P) + full)
+        floors = self.floors
+        if floors is not None and floors[k].any():
+            gap = floors[k][:2, :2] - P[:2, :2]
+            w, V = np.linalg.eigh(0.5 * (gap + gap.T))
+            P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
+            if len(floors[k]) == 3:
+                P[2, 2] = max(P[2, 2], floors[k][2, 2])
+        return (P + P.T) / 2
+
+    def states(self, infos: FloatArray) -> FloatArray:
+        """The state at every pose (N, n, n), the frames' information ``infos`` (N, 3, 3)."""
+        out = np.zeros((len(self.poses), self.n, self.n))
+        if len(out):
+            out[0] = P = self.start(infos[0])
+            for k in range(1, len(out)):
+                out[k] = P = self.step(P, k, infos[k])
+        return out
+
+
 def filter_route(
     infos: FloatArray,
     poses: FloatArray,
@@ -580,50 +663,19 @@ def filter_route(
     rad/s). After each update the position block is raised (in the PSD sense) to the
     position block of ``floors`` (N, 3, 3), and the heading variance to its ``[2, 2]``,
     where given, as the localizer does (a (N, 2, 2) ``floors`` is the position alone).
+    See :class:`RouteFilter` for the filter one pose at a time.
     """
-    poses = np.asarray(poses, float).reshape(-1, 3)
-    times = np.asarray(times, float).reshape(-1)
-    out = np.zeros((len(poses), 3, 3))
-    sv2, sw2 = grade.speed_sigma**2, math.radians(grade.rate_sigma_deg) ** 2
-    walk2 = grade.position_walk**2
-    n = 5 if grade.calibrated else 3
-    first = single_frame_covariance(infos[0])
-    P = np.zeros((n, n))
-    P[:3, :3] = first if np.all(np.isfinite(first)) else np.diag([1.0, 1.0, math.radians(5) ** 2])
-    P[2, 2] = max(P[2, 2], math.radians(grade.heading_sigma_deg) ** 2)
-    if grade.calibrated:
-        P[3, 3] = grade.scale_sigma**2
-        P[4, 4] = math.radians(grade.bias_sigma_deg) ** 2
-        calibration_walk2 = np.array([grade.scale_walk, math.radians(grade.bias_walk_deg)]) ** 2
-    out[0] = P[:3, :3]
-    F = np.eye(n)
-    info = np.zeros((n, n))
-    for k in range(1, len(poses)):
-        dt = max(float(times[k] - times[k - 1]), 1e-6)
-        step = poses[k, :2] - poses[k - 1, :2]
-        c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
-        F[0, 2], F[1, 2] = -step[1], step[0]
-        if grade.calibrated:
-            F[:2, 3] = -step  # the wheels over-read by the scale: the car went less far
-            F[2, 4] = -dt  # the gyro over-reads by the bias: the car turned less
-        P = F @ P @ F.T
-        P[:2, :2] += sv2 * dt * np.array([[c * c, c * s], [c * s, s * s]])
-        if walk2:
-            P[:2, :2] += walk2 * dt * np.eye(2)
-        P[2, 2] += sw2 * dt
-        if grade.calibrated:
-            P[3:, 3:] += np.diag(calibration_walk2 * dt)
-        if infos[k].any():
-            info[:3, :3] = infos[k]
-            P = np.linalg.inv(np.linalg.inv(P) + info)
-        if floors is not None and floors[k].any():
-            gap = floors[k][:2, :2] - P[:2, :2]
-            w, V = np.linalg.eigh(0.5 * (gap + gap.T))
-            P[:2, :2] += (V * np.maximum(w, 0.0)) @ V.T
-            if len(floors[k]) == 3:
-                P[2, 2] = max(P[2, 2], floors[k][2, 2])
-        P = (P + P.T) / 2
-        out[k] = P[:3, :3]
+    return RouteFilter(poses, times, grade, floors).states(infos)[:, :3, :3].copy()
+
+
+def position_sigmas(covs: FloatArray) -> FloatArray:
+    """:func:`position_sigma` of each of ``covs`` (N, >=2, >=2) at once: (N,) m."""
+    covs = np.asarray(covs, float)
+    out = np.full(len(covs), UNOBSERVABLE)
+    finite = np.all(np.isfinite(covs.reshape(len(covs), -1)), axis=1)
+    if finite.any():
+        w = np.linalg.eigvalsh(covs[finite][:, :2, :2]).max(axis=1)
+        out[finite] = np.sqrt(np.maximum(w, 0.0))
     return out
 
 
@@ -757,12 +809,14 @@ __all__ = [
     "LocalizerModel",
     "MapGeometry",
     "OdometryGrade",
+    "RouteFilter",
     "SensorModel",
     "frame_information",
     "filter_route",
     "localizer_grade",
     "localizer_model",
     "position_sigma",
+    "position_sigmas",
     "predicted_along_route",
     "predicted_on_grid",
     "route_floors",

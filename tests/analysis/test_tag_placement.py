@@ -4,12 +4,15 @@ import math
 
 import numpy as np
 
+from semslam.analysis import tag_placement
 from semslam.analysis.accuracy import (
     GRADES,
     MapGeometry,
+    RouteFilter,
     SensorModel,
     filter_route,
     position_sigma,
+    position_sigmas,
     route_information,
     tag_information,
 )
@@ -57,6 +60,66 @@ def test_greedy_tags_lower_the_worst_sigma_and_beat_even_spread():
     assert all(b < a for a, b in zip(worst, worst[1:], strict=False))
     assert worst[-1] < 0.6 * worst[0]
     assert even_placement(infos, poses, t, cands, 3, GRADES["automotive"]).worst_m >= worst[-1]
+
+
+def _greedy_by_hand(infos, poses, t, cands, count, grade):
+    """Greedy placement refiltering the whole route for every candidate: the tags chosen."""
+    chosen = []
+    for _ in range(count):
+        keys = {}
+        for c in set(range(len(cands))) - set(chosen):
+            added = tag_placement._expected_tag_information(poses, cands[c][None], SensorModel())
+            if added.any():
+                sigma = position_sigmas(filter_route(infos + added, poses, t, grade))
+                keys[c] = (round(sigma.max(), tag_placement.SIGMA_DIGITS), sigma.mean())
+        best = min(keys, key=lambda c: (keys[c], c))
+        chosen.append(best)
+        infos = infos + tag_placement._expected_tag_information(poses, cands[best][None],
+                                                                SensorModel())
+    return [tuple(cands[c]) for c in chosen]
+
+
+def test_greedy_placement_chooses_as_refiltering_the_whole_route_does():
+    poses, t = _route()
+    infos, _ = route_information(MapGeometry(_map()), poses)
+    cands = candidate_tags(poses, spacing=5.0, offset=3.0)
+    grade = GRADES["automotive"]
+    steps = greedy_placement(infos, poses, t, cands, 4, grade)
+    assert [s.tag for s in steps[1:]] == _greedy_by_hand(infos, poses, t, cands, 4, grade)
+
+
+def test_a_tag_is_refiltered_where_it_changes_the_filter_not_along_the_whole_route():
+    """A tag seen on two short stretches of a long route (going out and coming back): its
+    sigmas as refiltering the whole route gives them, for a fraction of the steps."""
+    out = np.arange(0.0, 1000.0)  # one pose a second, 2 m/s, out and back
+    x = np.concatenate([2.0 * out, 2000.0 - 2.0 * out])
+    poses = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    t = np.arange(len(x), dtype=float)
+    base = np.zeros((len(x), 3, 3))
+    base[:] = np.diag([400.0, 400.0, 1e4])  # landmarks in view all along: 5 cm, 0.6 deg
+    changed = np.concatenate([np.arange(100, 110), np.arange(1890, 1900)])
+    added = np.repeat(np.diag([5000.0, 1000.0, 4e4])[None], len(changed), axis=0)
+    full = base.copy()
+    full[changed] += added
+    grade = GRADES["automotive"]
+    route = RouteFilter(poses, t, grade)
+    states = route.states(base)
+    steps = 0
+    step = route.step
+
+    def counted(*args):
+        nonlocal steps
+        steps += 1
+        return step(*args)
+
+    route.step = counted
+    sigma = tag_placement._sigmas_changed(
+        route, states, position_sigmas(states), base, changed, added
+    )
+    expected = position_sigmas(filter_route(full, poses, t, grade))
+    np.testing.assert_allclose(sigma, expected, rtol=0, atol=1e-8)
+    assert np.abs(expected - position_sigmas(states)).max() > 0.01  # the tag matters
+    assert steps < len(x) / 4  # 304 of 2000
 
 
 def test_random_tags_are_reproducible_and_greedy_beats_their_median_on_the_worst_5_percent():
