@@ -16,6 +16,12 @@ current vehicle frame where
 - with three or more frames remembered, a slot seen only once is dropped (false
   detections come and go from frame to frame; real slots stay in view);
 - the most recent observation of each tag is kept.
+
+Frames closer than ``spacing`` (0.1 s) to the frame kept before them are not kept once a
+newer frame arrives: at the simulator's and most cameras' 10 Hz every frame stays, at 50 Hz
+about one in four. The memory, and so the work of each merge and what a label's number of
+readings means, does not grow with the frame rate (at 50 Hz, keeping every frame, the
+merges took 5 times the work per check at 5 times the checks: 21 s of a 246 s drive).
 """
 
 from __future__ import annotations
@@ -33,15 +39,22 @@ from semslam.types import FrameObservations, TagObservation
 
 
 class RecentFrames:
-    """Frames of the last ``window`` seconds with their odometry poses ``oTv``."""
+    """Frames of the last ``window`` seconds, at least ``spacing`` seconds apart but for the
+    newest, with their odometry poses ``oTv``."""
 
-    def __init__(self, window: float = 2.0, merge_distance: float = 0.7) -> None:
+    def __init__(
+        self, window: float = 2.0, merge_distance: float = 0.7, spacing: float = 0.1
+    ) -> None:
         self.window = window
         self.merge_distance = merge_distance
+        self.spacing = spacing
         self._frames: deque[tuple[FloatArray, FrameObservations, FloatArray]] = deque()
 
     def add(self, oTv: FloatArray, frame: FrameObservations) -> None:
         corners = np.array([s.vCorners for s in frame.slots], dtype=float).reshape(-1, 4, 2)
+        frames = self._frames
+        if len(frames) >= 2 and frame.t - frames[-2][1].t < self.spacing - 1e-6:
+            frames.pop()  # the newest so far lies within spacing of the one kept before it
         self._frames.append((np.asarray(oTv, dtype=float).copy(), frame, corners))
         while self._frames and frame.t - self._frames[0][1].t > self.window:
             self._frames.popleft()

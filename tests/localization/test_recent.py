@@ -62,3 +62,20 @@ def test_a_tag_seen_before_a_turn_moves_with_its_covariance_turned_whole():
     expected = np.array([[1e-4, 0.0, 0.0], [0.0, 0.01, -0.001], [0.0, -0.001, 1e-4]])
     np.testing.assert_allclose(moved.covariance, expected, atol=1e-15)
     assert np.linalg.eigvalsh(moved.covariance).min() > 0
+
+
+def test_the_memory_keeps_frames_a_tenth_of_a_second_apart_whatever_the_frame_rate():
+    """At 10 Hz every frame of the window is kept; at 50 Hz about one in four, the newest
+    always; a slot's readings count frames a tenth of a second apart either way."""
+    reads = {}
+    for rate in (10, 50):
+        recent = RecentFrames(window=2.0)
+        for i in range(4 * rate + 1):
+            recent.add(np.zeros(3), _frame(i / rate, "B2"))
+        kept = [f.t for _, f, _ in recent._frames]
+        assert kept[-1] == 4.0 and kept[0] >= 2.0 - 1e-9
+        assert min(np.diff(kept[:-1])) >= 0.08 - 1e-9  # at 50 Hz: 0.08 s apart
+        (slot,) = recent.merged().slots
+        reads[rate] = slot.label_reads
+    assert reads[10] == 21  # every frame from 2.0 s to 4.0 s
+    assert 20 <= reads[50] <= 27
