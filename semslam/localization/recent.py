@@ -52,12 +52,12 @@ class RecentFrames:
 
     def add(self, oTv: FloatArray, frame: FrameObservations) -> None:
         corners = np.array([s.vCorners for s in frame.slots], dtype=float).reshape(-1, 4, 2)
-        frames = self._frames
-        if len(frames) >= 2 and frame.t - frames[-2][1].t < self.spacing - 1e-6:
-            frames.pop()  # the newest so far lies within spacing of the one kept before it
-        self._frames.append((np.asarray(oTv, dtype=float).copy(), frame, corners))
-        while self._frames and frame.t - self._frames[0][1].t > self.window:
-            self._frames.popleft()
+        kept = self._frames
+        if len(kept) >= 2 and frame.t - kept[-2][1].t < self.spacing - 1e-6:
+            kept.pop()  # the newest so far lies within spacing of the one kept before it
+        kept.append((np.asarray(oTv, dtype=float).copy(), frame, corners))
+        while kept and frame.t - kept[0][1].t > self.window:
+            kept.popleft()
 
     def merged(self) -> FrameObservations | None:
         """All remembered observations in the vehicle frame of the newest frame."""
