@@ -46,7 +46,7 @@ def measure(root: Path, drive: Path, out: Path) -> dict:
             "command_speedup": round(stats["driving_s"] / command_s, 1),
             "corner_rmse_m": round(score["corner_rmse_m"], 4),
             "slots_matched": score["slots_matched"], "duplicates": score["duplicate_slots"],
-            "wrong_merges": score["wrong_merges"]}
+            "wrong_merges": score["wrong_merges"], "false_slots": score["false_slots"]}
 
 
 def main() -> None:
@@ -79,14 +79,16 @@ def main() -> None:
                 rows.append({"preset": preset, "seed": seed, "false_rate": rate,
                              "version": version, **row})
                 print(rows[-1], file=sys.stderr, flush=True)
-    lines = ["| preset | seed | false slots | version | mapping s | association s | "
+    lines = ["| preset | seed | false rate | version | mapping s | association s | "
              "whole command s | driving s | faster than driving (mapping / command) | "
-             "corner RMSE m | matched | duplicates | wrong merges |", "|" + " --- |" * 13]
+             "corner RMSE m | matched | duplicates | wrong merges | false slots mapped |",
+             "|" + " --- |" * 14]
     lines += [f"| {r['preset']} | {r['seed']} | {r['false_rate'] or 'default'} | "
               f"{r['version']} | {r['mapping_s']} | {r['association_s']} | "
               f"{r['command_s']} | {r['driving_s']} | {r['speedup']}x / "
               f"{r['command_speedup']}x | {r['corner_rmse_m']} | "
-              f"{r['slots_matched']} | {r['duplicates']} | {r['wrong_merges']} |" for r in rows]
+              f"{r['slots_matched']} | {r['duplicates']} | {r['wrong_merges']} | "
+              f"{r['false_slots']} |" for r in rows]
     report("\n".join(lines), {"rows": rows}, args.json)
 
 

@@ -31,6 +31,7 @@ Everything is in the map frame anchored at the drive's start pose.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections import defaultdict
@@ -110,6 +111,15 @@ _SHAPE_PRIORS = {  # (right angles, entrance width m, depth m, width sigma, dept
 
 
 _REFRESH_RADIUS = 25.0  # m around the car where landmark estimates are kept current
+
+
+@functools.lru_cache
+def _consistent_chi2(m: int) -> float:
+    """Chi-square bound on M sightings of one slot about their mean: 8 (M - 1) degrees of
+    freedom, exceeded by chance once in 10,000."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(1.0 - 1e-4, 8 * (m - 1)))
 
 
 class SightingStatus(StrEnum):
@@ -481,7 +491,7 @@ class Mapper:
             self._attach(sighting, candidates)
             return
         pooled = self.pool.add(corners, obs.kind, index, k)
-        if len(pooled.sightings) >= cfg.new_landmark_observations:
+        if len(pooled.sightings) >= cfg.new_landmark_observations and self._consistent(pooled):
             self.pool.remove(pooled)
             if self.robust and self.slots.overlapping(pooled.mean_corners, cfg.max_overlap):
                 return  # a ghost of a mapped slot: its sightings stay unassociated
@@ -489,6 +499,20 @@ class Mapper:
             self._add_slot_variables(landmark.index, landmark.corners, landmark.kind)
             for i in pooled.sightings:
                 self._attach(self.sightings[i], [(landmark.index, 0.0, False)])
+
+    def _consistent(self, pooled) -> bool:
+        """Do the last M sightings of a pooled slot agree with their mean as well as their
+        corner sigmas say (chi-square, 8 (M - 1) degrees of freedom, 1e-4 false alarm)?"""
+        m = self.cfg.new_landmark_observations
+        if m < 2:
+            return True
+        last = np.array(pooled.corners[-m:])
+        sigmas = np.array([
+            max(self.sightings[i].observation.corner_sigma, self.cfg.slot_corner_sigma_min)
+            for i in pooled.sightings[-m:]
+        ])
+        chi2 = float((((last - last.mean(axis=0)) ** 2).sum(axis=(1, 2)) / sigmas**2).sum())
+        return chi2 <= _consistent_chi2(m)
 
     def _vote_for_loop_closure(
         self, k: int, index: int, corners: FloatArray, obs: SlotObservation, candidates
