@@ -17,7 +17,9 @@ Follows TiEV (DESIGN.md) with the association made exact:
 - the slot detections of the frames between keyframes are fused into the keyframe's
   (:mod:`.frame_fusion`);
 - with no candidate the sighting waits in a pool and becomes a new landmark after
-  M consistent sightings; duplicates (same place, compatible ID) are merged by
+  M consistent sightings (within ``pool_radius``, and the last M agreeing with their
+  mean as their corner sigmas say: ghosts scatter), unless it overlaps a mapped slot;
+  duplicates (same place, compatible ID) are merged by
   tight equality factors; optionally, loop closures by agreeing IDs when the drift
   exceeds the gates (:mod:`.loop_closure`, off by default);
 - iSAM2 every ``update_every`` keyframes (the map is usable at any time), a final
