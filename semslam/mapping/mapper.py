@@ -503,15 +503,19 @@ class Mapper:
                 self._attach(self.sightings[i], [(landmark.index, 0.0, False)])
 
     def _consistent(self, pooled) -> bool:
-        """Do the last M sightings of a pooled slot agree with their mean as well as their
-        corner sigmas say (chi-square, 8 (M - 1) degrees of freedom, 1e-4 false alarm)?"""
+        """Are the last M sightings of a pooled slot from M keyframes (a slot is seen once
+        per keyframe, its frames fused; ghosts come several at a time) and do they agree
+        with their mean as well as their corner sigmas say (chi-square, 8 (M - 1) degrees
+        of freedom, 1e-4 false alarm)?"""
         m = self.cfg.new_landmark_observations
         if m < 2:
             return True
+        sightings = [self.sightings[i] for i in pooled.sightings[-m:]]
+        if len({s.keyframe for s in sightings}) < m:
+            return False
         last = np.array(pooled.corners[-m:])
         sigmas = np.array([
-            max(self.sightings[i].observation.corner_sigma, self.cfg.slot_corner_sigma_min)
-            for i in pooled.sightings[-m:]
+            max(s.observation.corner_sigma, self.cfg.slot_corner_sigma_min) for s in sightings
         ])
         chi2 = float((((last - last.mean(axis=0)) ** 2).sum(axis=(1, 2)) / sigmas**2).sum())
         return chi2 <= _consistent_chi2(m)

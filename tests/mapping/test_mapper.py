@@ -448,20 +448,19 @@ def test_a_long_standstill_costs_each_frame_only_its_own_odometry(small, monkeyp
     assert keyframes == expected
 
 
-def _with_scattered_ghosts(frames, per_frame, seed=0):
+def _with_scattered_ghosts(frames, per_frame, copies=1, seed=0):
     """Each frame's first slot also seen ``per_frame`` times shifted half a slot width
-    sideways, give or take 0.15 of a width: false slots that pile up between two
-    neighbours, inconsistent with each other."""
+    sideways, give or take 0.15 of a width (each ghost ``copies`` times, to the digit):
+    false slots that pile up between two neighbours, inconsistent from one to the next."""
     rng = np.random.default_rng(seed)
     out = []
     for f in frames:
         ghosts = tuple(
-            dataclasses.replace(
-                o, vCorners=o.vCorners + (o.vCorners[1] - o.vCorners[0]) * rng.uniform(0.35, 0.65),
-                label=None, label_confidence=0.0,
-            )
+            dataclasses.replace(o, vCorners=o.vCorners + shift, label=None, label_confidence=0.0)
             for o in f.slots[:1]
-            for _ in range(per_frame)
+            for shift in [(o.vCorners[1] - o.vCorners[0]) * rng.uniform(0.35, 0.65)
+                          for _ in range(per_frame)]
+            for _ in range(copies)
         )
         out.append(FrameObservations(f.t, f.slots + ghosts, f.tags, f.markings))
     return out
@@ -472,6 +471,15 @@ def test_ghosts_that_disagree_with_each_other_do_not_become_a_slot(small):
     refuse the real slots as overlapping them; a pooled slot becomes a landmark only when
     its last M sightings agree as their corner sigmas say."""
     result = _map(small, _with_scattered_ghosts(small.exact, 2))
+    m = evaluate_map(result.map, _seen_truth(small))
+    assert m.slots_matched == m.slots_true
+    assert m.wrong_merges == 0 and m.false_slots == 0 and m.duplicate_slots == 0
+
+
+def test_ghosts_seen_several_at_once_do_not_become_a_slot(small):
+    """Three copies of one ghost in a frame agree to the digit, but a slot is seen once
+    per keyframe: M sightings confirm a slot only from M keyframes."""
+    result = _map(small, _with_scattered_ghosts(small.exact, 1, copies=3))
     m = evaluate_map(result.map, _seen_truth(small))
     assert m.slots_matched == m.slots_true
     assert m.wrong_merges == 0 and m.false_slots == 0 and m.duplicate_slots == 0
