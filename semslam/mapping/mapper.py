@@ -17,8 +17,9 @@ Follows TiEV (DESIGN.md) with the association made exact:
 - the slot detections of the frames between keyframes are fused into the keyframe's
   (:mod:`.frame_fusion`);
 - with no candidate the sighting waits in a pool and becomes a new landmark after
-  M consistent sightings (within ``pool_radius``, and the last M agreeing with their
-  mean as their corner sigmas say: ghosts scatter), unless it overlaps a mapped slot;
+  M consistent sightings (within ``pool_radius``, the last M from M keyframes and
+  agreeing with their mean as their corner sigmas say: ghosts come several at a time
+  and scatter), unless it overlaps a mapped slot;
   duplicates (same place, compatible ID) are merged by
   tight equality factors; optionally, loop closures by agreeing IDs when the drift
   exceeds the gates (:mod:`.loop_closure`, off by default);
@@ -66,6 +67,7 @@ from semslam.mapping.factors import (
 from semslam.mapping.frame_fusion import fuse_detection, slots_in_keyframe
 from semslam.mapping.graph import Graph
 from semslam.mapping.landmarks import (
+    PooledSlot,
     SlotLandmark,
     SlotLandmarks,
     SlotPool,
@@ -502,7 +504,7 @@ class Mapper:
             for i in pooled.sightings:
                 self._attach(self.sightings[i], [(landmark.index, 0.0, False)])
 
-    def _consistent(self, pooled) -> bool:
+    def _consistent(self, pooled: PooledSlot) -> bool:
         """Are the last M sightings of a pooled slot from M keyframes (a slot is seen once
         per keyframe, its frames fused; ghosts come several at a time) and do they agree
         with their mean as well as their corner sigmas say (chi-square, 8 (M - 1) degrees
