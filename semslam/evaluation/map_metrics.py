@@ -21,6 +21,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from semslam.evaluation.alignment import apply_se2, fit_se2, transform_map
+from semslam.evaluation.segments import nearest_segments
 from semslam.geometry import FloatArray, compose, inverse, wrap_angle
 from semslam.types import SemanticMap, Tag
 
@@ -30,7 +31,6 @@ REVERSED_ORDER = (2, 3, 0, 1)  # the same slot seen from its rear: entrance and 
 REVERSED_FACTOR = 0.5  # the reversed order counts when its mean corner distance is below half
 ICP_ITERATIONS = 20
 CONFIDENT_LABEL = 0.9  # label_confidence from which a mapped ID counts as confident
-_CHUNK = 1 << 20  # point-segment pairs per block in the marking distances
 
 
 @dataclass(frozen=True)
@@ -277,7 +277,9 @@ def _match_tags(est: Sequence[Tag], true: Sequence[Tag]) -> list[tuple[int, int]
 
 
 def point_segment_distances(points: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
-    """Distance (metres) from each point to the nearest of the segments ``a[k]``-``b[k]``.
+    """Distance (metres) from each point to the nearest of the segments ``a[k]``-``b[k]``
+    (:func:`~semslam.evaluation.segments.nearest_segments`: near linear in points and
+    segments).
 
     Args:
         points: (P, 2) points.
@@ -286,19 +288,7 @@ def point_segment_distances(points: FloatArray, a: FloatArray, b: FloatArray) ->
     Returns:
         (P,) distances.
     """
-    points = np.asarray(points, dtype=float).reshape(-1, 2)
-    a = np.asarray(a, dtype=float).reshape(-1, 2)
-    ab = np.asarray(b, dtype=float).reshape(-1, 2) - a
-    length2 = np.einsum("ij,ij->i", ab, ab)
-    safe = np.where(length2 > 0, length2, 1.0)
-    out = np.empty(len(points))
-    step = max(1, _CHUNK // max(1, len(a)))
-    for start in range(0, len(points), step):
-        p = points[start : start + step]
-        ap = p[:, None, :] - a[None]
-        t = np.clip(np.einsum("psi,si->ps", ap, ab) / safe, 0.0, 1.0)
-        out[start : start + step] = np.linalg.norm(ap - t[..., None] * ab, axis=2).min(axis=1)
-    return out
+    return nearest_segments(points, a, b)[0]
 
 
 # --------------------------------------------------------------------------- alignment

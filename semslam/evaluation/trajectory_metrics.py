@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from semslam.evaluation.alignment import fit_se2
+from semslam.evaluation.segments import nearest_segments
 from semslam.geometry import FloatArray, rotation, wrap_angle
 from semslam.types import SemanticMap
 
@@ -35,7 +36,6 @@ CHI2_3DOF_95 = 7.814727903251178  # scipy.stats.chi2.ppf(0.95, 3)
 NOT_LOCALIZED = ("lost", "initializing")  # statuses whose frames are not scored
 _TIME_EPS_S = 1e-9  # rounding slack on the RPE time step
 _MIN_SEGMENT_M = 1e-9  # shorter segments have no direction and are dropped
-_CHUNK = 1 << 20  # point-segment pairs per block in the nearest-segment search
 
 
 # --------------------------------------------------------------------------- helpers
@@ -144,7 +144,8 @@ def map_segments(semantic_map: SemanticMap) -> FloatArray:
 
 
 def nearest_segment(points: ArrayLike, segments: ArrayLike) -> NDArray[np.intp]:
-    """Index of the segment nearest to each point (exact, in blocks of point-segment pairs).
+    """Index of the segment nearest to each point (exact; near linear in points and
+    segments, :func:`~semslam.evaluation.segments.nearest_segments`).
 
     Args:
         points: (P, 2) points, metres.
@@ -153,20 +154,8 @@ def nearest_segment(points: ArrayLike, segments: ArrayLike) -> NDArray[np.intp]:
     Returns:
         (P,) indices into ``segments``.
     """
-    pts = np.asarray(points, dtype=float).reshape(-1, 2)
     seg = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
-    a = seg[:, 0]
-    ab = seg[:, 1] - a
-    length2 = np.einsum("ij,ij->i", ab, ab)
-    safe = np.where(length2 > 0, length2, 1.0)
-    out = np.empty(len(pts), dtype=np.intp)
-    step = max(1, _CHUNK // max(1, len(a)))
-    for start in range(0, len(pts), step):
-        ap = pts[start : start + step, None, :] - a[None]
-        u = np.clip(np.einsum("psi,si->ps", ap, ab) / safe, 0.0, 1.0)
-        d2 = np.square(ap - u[..., None] * ab).sum(axis=2)
-        out[start : start + step] = d2.argmin(axis=1)
-    return out
+    return nearest_segments(points, seg[:, 0], seg[:, 1])[1]
 
 
 # --------------------------------------------------------------------------- evaluation
