@@ -63,6 +63,11 @@ def nearest_segments(
         (P,) distances and (P,) indices into the segments (the lowest of equally near).
     """
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():  # a point that is not one has no nearest segment: NaN, index 0
+        d, index = np.full(len(pts), np.nan), np.zeros(len(pts), dtype=np.intp)
+        d[finite], index[finite] = nearest_segments(pts[finite], a, b)
+        return d, index
     a = np.asarray(a, dtype=float).reshape(-1, 2)
     ab = np.asarray(b, dtype=float).reshape(-1, 2) - a
     length2 = np.einsum("ij,ij->i", ab, ab)

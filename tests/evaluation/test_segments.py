@@ -37,3 +37,12 @@ def test_equally_near_segments_give_the_first():
     b = a + [1.0, 0.0]
     d, index = nearest_segments(np.array([[0.5, 0.0]]), a, b)
     assert d.tolist() == [1.0] and index.tolist() == [0]
+
+
+def test_a_point_that_is_not_a_number_has_no_nearest_segment():
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0, 100, (500, 2))
+    points = rng.uniform(0, 100, (300, 2))
+    points[3] = np.nan
+    d, index = nearest_segments(points, a, a + 1.0)
+    assert np.isnan(d[3]) and np.isfinite(np.delete(d, 3)).all() and index[3] == 0
