@@ -21,28 +21,21 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from semslam.evaluation.segments import nearest_segments
 from semslam.geometry import FloatArray
 
-_CHUNK = 4_000_000  # point-segment (or point-pose) pairs evaluated at once
+_CHUNK = 4_000_000  # point-pose pairs evaluated at once
 
 
 def point_segment_distances(points: FloatArray, segments: FloatArray) -> FloatArray:
-    """(P,) distance from each point (P, 2) to the nearest of the segments (S, 2, 2);
-    infinity when there is no segment."""
+    """(P,) distance from each point (P, 2) to the nearest of the segments (S, 2, 2)
+    (:func:`~semslam.evaluation.segments.nearest_segments`); infinity when there is no
+    segment."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     s = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
-    out = np.full(len(p), np.inf)
     if len(s) == 0 or len(p) == 0:
-        return out
-    a, d = s[:, 0], s[:, 1] - s[:, 0]
-    dd = np.maximum((d * d).sum(axis=1), 1e-18)
-    step = max(1, _CHUNK // len(s))
-    for i in range(0, len(p), step):
-        q = p[i : i + step, None, :] - a[None]  # (p, S, 2)
-        t = np.clip((q * d[None]).sum(-1) / dd[None], 0.0, 1.0)
-        r = q - t[..., None] * d[None]
-        out[i : i + step] = np.sqrt((r * r).sum(-1).min(axis=1))
-    return out
+        return np.full(len(p), np.inf)
+    return nearest_segments(p, s[:, 0], s[:, 1])[0]
 
 
 def near_path(points: FloatArray, path: FloatArray, radius: float) -> np.ndarray:

@@ -1,13 +1,13 @@
 """The nearest of many segments to each of many points, exactly, in time near linear.
 
-Scoring a map's painted lines or a trajectory against the nearest marking compares every
-point with every segment when done plainly: P x S pairs, quadratic when both grow with the
-garage. Here a KD-tree over the midpoints of the segments' pieces (at most 2 m long) gives
-each point an upper bound (its distance to the segment of the nearest piece); a segment
-can only be nearer if one of its pieces' midpoints lies within that bound plus a piece's
-half-length, so only those are compared. The distances are computed by the same formula as
-the plain comparison and the nearest is the first of equals, so the result is the plain
-one.
+Scoring a map's painted lines (simulated or the real garage's) or a trajectory against the
+nearest marking compares every point with every segment when done plainly: P x S pairs,
+quadratic when both grow with the garage. Here a KD-tree over the midpoints of the
+segments' pieces (at most 2 m long) gives each point an upper bound (its distance to the
+segment of the nearest piece); a segment can only be nearer if one of its pieces'
+midpoints lies within that bound plus a piece's half-length, so only those are compared.
+The distances are computed by the same formula as the plain comparison and the nearest is
+the first of equals, so the result is the plain one.
 """
 
 from __future__ import annotations
