@@ -272,13 +272,21 @@ def innovation_chi2(
     not in the graph that ``marginals`` (gtsam ``Marginals`` or ``ISAM2``) describes;
     ``3 len(edges)`` degrees of freedom.
 
-    With ``gate``, a cheap lower bound comes first: the joint covariance of ``n`` poses is at
-    most ``n`` times its block diagonal (Cauchy-Schwarz), so single-pose marginals bound the
-    statistic from below; when the bound already exceeds ``gate`` it is returned (the
-    measurements fail the gate either way) and the joint marginal, expensive for poses far
-    apart in the Bayes tree, is never formed."""
+    With ``gate``, two bounds come first, and whichever settles the gate is returned instead
+    of the statistic (the measurements pass or fail it either way), so that the marginals,
+    expensive for poses far apart in the Bayes tree, are only formed when needed:
+
+    - from above, free: ``Sigma_z + H Sigma H' >= Sigma_z``, so ``r' Sigma_z^-1 r`` is at
+      least the statistic; when it is within ``gate`` no marginal is read at all (most true
+      loop closures, once their loop has closed);
+    - from below: the joint covariance of ``n`` poses is at most ``n`` times its block
+      diagonal (Cauchy-Schwarz), so single-pose marginals bound the statistic from below;
+      when that bound exceeds ``gate`` the joint marginal is never formed."""
     r, H, Sz, keys = _stack(values, edges)
     if gate is not None:
+        free = float(r @ np.linalg.solve(Sz, r))
+        if free <= gate:
+            return free
         n = len(keys)
         upper = Sz.copy()
         for i, key in enumerate(keys):

@@ -390,5 +390,15 @@ def test_leave_out_statistic_equals_innovation_against_the_graph_without_them():
     # the cheap bound never exceeds the statistic; with a tiny gate it is what comes back
     bound = innovation_chi2(v_rest, m_rest, test, gate=1e-9)
     assert 0 < bound <= innovation + 1e-9
+    # with a gate the measurement alone passes, its own chi-square comes back, a bound from
+    # above, and no marginal is read
+    upper = innovation_chi2(v_rest, None, test, gate=1e9)
+    assert upper >= innovation - 1e-9
+    own = 0.0
+    for e in test:
+        z = gtsam.Pose2(*e.measurement)
+        r = between_residual(v_rest.atPose2(e.a), v_rest.atPose2(e.b), z)[0]
+        own += float(r @ e.information @ r)
+    assert upper == pytest.approx(own)
     wrong = [Edge2D(3, 30, np.zeros(3), closures[0].information)]
     assert innovation_chi2(v_full, m_full, wrong, gate=16.0) > 1e3
