@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from semslam.errors import ConfigError
 from semslam.geometry import FloatArray, clip_segments, rotation
@@ -272,9 +273,11 @@ def _in_topview(vP: FloatArray, s: SensorModel) -> np.ndarray:
 
 
 class MapGeometry:
-    """The map's landmarks as arrays, ready for many poses."""
+    """The map's landmarks as arrays, ready for many poses; :meth:`around` keeps those near
+    one place, so that a pose's cost does not grow with the size of the garage."""
 
     def __init__(self, semantic_map: SemanticMap) -> None:
+        self._trees: dict[str, tuple[cKDTree, np.ndarray]] = {}
         slots = semantic_map.slots
         self.corners = np.array([c for s in slots for c in s.corners], float).reshape(-1, 2)
         self.corner_cov = np.array([c for s in slots for c in s.corner_covariances], float).reshape(
@@ -288,6 +291,50 @@ class MapGeometry:
         self.tag_cov = np.array([t.covariance for t in tags], float).reshape(-1, 3, 3)
         self.lines = np.array([[m.a, m.b] for m in semantic_map.markings], float).reshape(-1, 2, 2)
 
+    def around(self, point: FloatArray, sensors: SensorModel, model: LocalizerModel) -> MapGeometry:
+        """The landmarks that can be in view at ``point`` (x, y, metres; map frame) whatever
+        the heading: whole slots with a corner, and painted lines, that come within the top
+        view's circumradius; tags within the range limit of the camera. In the map's order,
+        so every frame at ``point`` gets from it exactly what it gets from the whole map."""
+        point = np.asarray(point, float)[:2]
+        view = sensors.topview_half_m * math.sqrt(2.0) + _REACH_MARGIN
+        tag_reach = (min(sensors.tag_range_limit, model.tag_range_limit) + abs(sensors.camera_x)
+                     + _REACH_MARGIN)
+        near = object.__new__(MapGeometry)
+        near._trees = {}
+        corners = self._near("corners", self.corners, point, view)
+        slots = np.unique(self.slot_of_corner[corners])
+        whole = np.nonzero(np.isin(self.slot_of_corner, slots))[0]
+        near.corners, near.corner_cov = self.corners[whole], self.corner_cov[whole]
+        near.heading_var, near.entrances = self.heading_var[slots], self.entrances[slots]
+        near.slot_of_corner = np.searchsorted(slots, self.slot_of_corner[whole])
+        tags = self._near("tags", self.tags[:, :2], point, tag_reach)
+        near.tags, near.tag_cov = self.tags[tags], self.tag_cov[tags]
+        pieces = self._near("lines", None, point, view + 0.5 * _LINE_PIECE)
+        near.lines = self.lines[pieces]
+        return near
+
+    def _near(self, kind: str, points: FloatArray | None, point: FloatArray,
+              reach: float) -> np.ndarray:
+        """Indices (ascending, each once) of ``kind``'s points within ``reach`` of ``point``;
+        for lines, of the lines with a piece (at most :data:`_LINE_PIECE` long) whose middle
+        is there. One KD-tree per kind, built on first use."""
+        if kind not in self._trees:
+            if kind == "lines":
+                a, d = self.lines[:, 0], self.lines[:, 1] - self.lines[:, 0]
+                pieces = np.maximum(1, np.ceil(np.hypot(d[:, 0], d[:, 1]) / _LINE_PIECE))
+                owner = np.repeat(np.arange(len(a)), pieces.astype(int))
+                first = np.cumsum(pieces.astype(int)) - pieces.astype(int)
+                share = (np.arange(len(owner)) - first[owner] + 0.5) / pieces[owner]
+                points = a[owner] + share[:, None] * d[owner]
+            else:
+                owner = np.arange(len(points))
+            self._trees[kind] = (cKDTree(np.asarray(points, float).reshape(-1, 2)), owner)
+        tree, owner = self._trees[kind]
+        if not tree.n:
+            return np.zeros(0, dtype=int)
+        return np.unique(owner[np.asarray(tree.query_ball_point(point, reach), dtype=int)])
+
     def bounds(self, margin: float = 2.0) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of every landmark, widened by ``margin`` metres."""
         pts = np.concatenate([self.corners, self.tags[:, :2], self.lines.reshape(-1, 2)])
@@ -295,6 +342,10 @@ class MapGeometry:
             return (-margin, -margin, margin, margin)
         lo, hi = pts.min(axis=0) - margin, pts.max(axis=0) + margin
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+
+_REACH_MARGIN = 1e-6  # m: round-off at the edge of a reach keeps a landmark in
+_LINE_PIECE = 2.0  # m: painted lines enter the KD-tree as pieces at most this long
 
 
 @dataclass(frozen=True)
@@ -531,7 +582,7 @@ def _route_frames(
     floors = np.zeros((len(poses), 3, 3))
     counts = {k: np.zeros(len(poses), int) for k in ("corners", "slots", "tags", "lines")}
     for k, pose in enumerate(poses):
-        frame = _frame(geometry, pose, sensors, model)
+        frame = _frame(geometry.around(pose, sensors, model), pose, sensors, model)
         infos[k], floors[k] = _expected_information(frame, sensors), frame.floor
         for key, value in frame.counts.items():
             counts[key][k] = value
@@ -733,9 +784,10 @@ def predicted_on_grid(
     for i, y in enumerate(ys):
         for j, x in enumerate(xs):
             worst = 0.0
+            near = geometry.around(np.array([x, y]), sensors, model)
             for h in headings_deg:
                 pose = np.array([x, y, math.radians(h)])
-                info, _ = frame_information(geometry, pose, sensors, model)
+                info, _ = frame_information(near, pose, sensors, model)
                 worst = max(worst, position_sigma(single_frame_covariance(info)))
             sigma[i, j] = worst
     return xs, ys, sigma

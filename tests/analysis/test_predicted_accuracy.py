@@ -148,3 +148,47 @@ def test_the_vectorised_line_clip_and_reach_agree_with_the_scalar_clip():
     assert len(near) < len(a)  # some are left out before clipping ...
     visible = {tuple(np.round(np.concatenate([a[k], b[k]]), 9)) for k in np.flatnonzero(keep)}
     assert visible <= {tuple(np.round(s.ravel(), 9)) for s in near}  # ... none in view
+
+
+def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_gives():
+    """A grid cell or route pose looks only at the landmarks near it (KD-trees), so a big
+    garage costs no more per pose than a small one; every heading, every rule, to the bit."""
+    from dataclasses import replace
+
+    from semslam.analysis.accuracy import IDEAL, LocalizerModel, _frame
+
+    rng = np.random.default_rng(7)
+    slots = tuple(_slot(x, y, k) for k, (x, y) in enumerate(rng.uniform(-60, 60, (300, 2))))
+    tags = tuple(
+        Tag(TagFamily.TAG36H11, k, 0.3, np.array([*p, rng.uniform(-math.pi, math.pi)]), 1.0,
+            np.eye(3) * 1e-4)
+        for k, p in enumerate(rng.uniform(-70, 70, (60, 2)))
+    )
+    starts = rng.uniform(-70, 70, (400, 2))
+    ends = starts + rng.uniform(-15, 15, (400, 2))
+    ends[:20] = starts[:20]  # points
+    lines = tuple(Marking(a, b, 0.12) for a, b in zip(starts, ends, strict=True))
+    geometry = MapGeometry(SemanticMap(slots=slots, tags=tags, markings=lines))
+    seen = {"corners": 0, "tags": 0, "lines": 0}
+    localizer = LocalizerModel(fallback_below=2, map_floor_scale=1.0, marking_map_sigma=0.05)
+    models = (IDEAL, replace(IDEAL, tag_range_limit=8.0), localizer)
+    for rule in ("corners", "entrance"):
+        sensors = SensorModel(slot_rule=rule)
+        for model in models:
+            for point in rng.uniform(-70, 70, (40, 2)):
+                near = geometry.around(point, sensors, model)
+                assert len(near.corners) < len(geometry.corners)
+                for yaw in (0.0, 1.0, 2.5, -2.0):
+                    pose = np.array([*point, yaw])
+                    whole, local = (_frame(g, pose, sensors, model) for g in (geometry, near))
+                    for kind in ("slots", "tags", "lines", "floor"):
+                        assert np.array_equal(getattr(whole, kind), getattr(local, kind))
+                    assert whole.counts == local.counts
+                    assert whole.lines_weight == local.lines_weight
+                    for k in seen:
+                        seen[k] += whole.counts[k]
+    assert all(n > 0 for n in seen.values())
+    empty = MapGeometry(SemanticMap())
+    frame = _frame(empty.around(np.zeros(2), SensorModel(), IDEAL), np.zeros(3), SensorModel(),
+                   IDEAL)
+    assert frame.counts == {"corners": 0, "slots": 0, "tags": 0, "lines": 0}
