@@ -146,6 +146,20 @@ def clip_segments(
     return np.stack([a + d * t0[:, None], a + d * t1[:, None]], axis=1), keep
 
 
+def segment_pieces(
+    a: FloatArray, ab: FloatArray, piece: float
+) -> tuple[FloatArray, NDArray[np.intp]]:
+    """The middles (M, 2) of segments ``a[k]``, ``a[k] + ab[k]`` (K, 2 each) cut into equal
+    pieces at most ``piece`` long (one piece for a point), and the segment of each (M,). A
+    KD-tree over the middles finds every segment that comes within ``r`` of a point among
+    the pieces whose middle lies within ``r + piece / 2`` of it."""
+    count = np.maximum(1, np.ceil(np.hypot(ab[:, 0], ab[:, 1]) / piece)).astype(np.intp)
+    owner = np.repeat(np.arange(len(a)), count)
+    first = np.cumsum(count) - count
+    share = (np.arange(len(owner)) - first[owner] + 0.5) / count[owner]
+    return a[owner] + share[:, None] * ab[owner], owner
+
+
 def rotation_variance(points: ArrayLike, covariance: ArrayLike) -> float:
     """Variance (rad^2) of the rotation of a rigid set of 2D ``points`` (N, 2) about their
     centroid, fitted by least squares to the points, from the points' joint covariance

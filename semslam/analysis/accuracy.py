@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from semslam.errors import ConfigError
-from semslam.geometry import FloatArray, clip_segments, rotation
+from semslam.geometry import FloatArray, clip_segments, rotation, segment_pieces
 from semslam.localization.measurements import point_jacobian
 from semslam.types import SemanticMap
 
@@ -321,12 +321,8 @@ class MapGeometry:
         is there. One KD-tree per kind, built on first use."""
         if kind not in self._trees:
             if kind == "lines":
-                a, d = self.lines[:, 0], self.lines[:, 1] - self.lines[:, 0]
-                pieces = np.maximum(1, np.ceil(np.hypot(d[:, 0], d[:, 1]) / _LINE_PIECE))
-                owner = np.repeat(np.arange(len(a)), pieces.astype(int))
-                first = np.cumsum(pieces.astype(int)) - pieces.astype(int)
-                share = (np.arange(len(owner)) - first[owner] + 0.5) / pieces[owner]
-                points = a[owner] + share[:, None] * d[owner]
+                a = self.lines[:, 0]
+                points, owner = segment_pieces(a, self.lines[:, 1] - a, _LINE_PIECE)
             else:
                 owner = np.arange(len(points))
             self._trees[kind] = (cKDTree(np.asarray(points, float).reshape(-1, 2)), owner)

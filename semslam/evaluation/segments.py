@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from semslam.geometry import FloatArray
+from semslam.geometry import FloatArray, segment_pieces
 
 _PLAIN_PAIRS = 1 << 16  # below this many point-segment pairs, compare them all
 _CHUNK = 1 << 20  # pairs per block
@@ -30,15 +30,12 @@ def _pair_distances(p: FloatArray, a: FloatArray, ab: FloatArray, safe: FloatArr
     return np.linalg.norm(ap - t[:, None] * ab, axis=1)
 
 
-def _candidates(pts, a, ab, safe, length2) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+def _candidates(pts, a, ab, safe) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """(point, segment) pairs that may be nearest, sorted by point. Long segments enter the
     KD-tree as pieces at most :data:`_PIECE` long (a painted line 50 m long would otherwise
     make every point's reach 25 m)."""
-    pieces = np.maximum(1, np.ceil(np.sqrt(length2) / _PIECE)).astype(np.intp)
-    owner = np.repeat(np.arange(len(a)), pieces)
-    start = np.cumsum(pieces) - pieces
-    centre = (np.arange(len(owner)) - start[owner] + 0.5) / pieces[owner]
-    tree = cKDTree(a[owner] + centre[:, None] * ab[owner])
+    middles, owner = segment_pieces(a, ab, _PIECE)
+    tree = cKDTree(middles)
     _, q0 = tree.query(pts)
     s0 = owner[q0]
     bound = _pair_distances(pts, a[s0], ab[s0], safe[s0])
@@ -76,7 +73,7 @@ def nearest_segments(
     if n_pts * n_seg <= _PLAIN_PAIRS:
         pi, sj = np.repeat(np.arange(n_pts), n_seg), np.tile(np.arange(n_seg), n_pts)
     else:
-        pi, sj = _candidates(pts, a, ab, safe, length2)
+        pi, sj = _candidates(pts, a, ab, safe)
     d = np.empty(len(pi))
     for s in range(0, len(pi), _CHUNK):
         i, j = pi[s : s + _CHUNK], sj[s : s + _CHUNK]
