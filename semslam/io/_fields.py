@@ -212,6 +212,22 @@ def check_covariance(f: Field, covariance: FloatArray, bound: float) -> None:
         f.fail("not positive semi-definite")
 
 
+def check_covariances(f: Field, covariances: FloatArray, bound: float) -> None:
+    """:func:`check_covariance` of each of ``covariances`` (K, n, n), the elements of the
+    list ``f``, all at once; on a failure the first failing one is named as alone."""
+    c = np.asarray(covariances, dtype=float)
+    if not len(c):
+        return
+    scale = np.maximum(np.abs(c).max(axis=(1, 2)), 1e-300)
+    if (scale <= bound).all():  # no NaN, nothing huge: the sums below cannot overflow
+        cT = np.swapaxes(c, 1, 2)
+        lowest = np.linalg.eigvalsh(0.5 * (c + cT))[:, 0]
+        if ((np.abs(c - cT).max(axis=(1, 2)) <= 1e-9 * scale) & (lowest >= -1e-9 * scale)).all():
+            return
+    for field, covariance in zip(f.items(), c, strict=True):
+        check_covariance(field, covariance, bound)
+
+
 _FLOAT_MAX = sys.float_info.max
 
 

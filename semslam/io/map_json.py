@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 
 from semslam.errors import MapError
-from semslam.io._fields import Field, check_covariance, check_within
+from semslam.io._fields import Field, check_covariance, check_covariances, check_within
 from semslam.io._json import (
     dumps_pretty,
     find_non_finite,
+    may_hold_non_finite,
     non_finite_message,
     parse_json,
     to_jsonable,
@@ -69,12 +70,17 @@ def map_to_dict(semantic_map: SemanticMap) -> dict[str, Any]:
     }
 
 
-def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
+def map_from_dict(
+    document: Any, source: str = "<dict>", scan_non_finite: bool = True
+) -> SemanticMap:
     """A map from its JSON document, fully checked.
 
     Args:
         document: the parsed JSON.
         source: name used in error messages (the file path).
+        scan_non_finite: look for NaN/infinity anywhere in ``document`` first (so the
+            message names it whatever else is wrong); False when its text was seen to
+            hold none (:func:`~semslam.io._json.may_hold_non_finite`).
 
     Raises:
         MapError: wrong format or version, a schema violation, NaN/infinity,
@@ -82,7 +88,7 @@ def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
             covariance that is not symmetric positive semi-definite, or a zero-length
             marking; the message names ``source`` and the field.
     """
-    check_map_document(document, source)
+    check_map_document(document, source, scan_non_finite)
     root = Field(document, source, MapError)
     slots = tuple(_slot_from_field(f) for f in root["slots"].items())
     seen: dict[int, int] = {}
@@ -110,11 +116,13 @@ def map_from_dict(document: Any, source: str = "<dict>") -> SemanticMap:
     )
 
 
-def check_map_document(document: Any, source: str = "<dict>") -> None:
+def check_map_document(
+    document: Any, source: str = "<dict>", scan_non_finite: bool = True
+) -> None:
     """Check a map document without building the map (see :func:`map_from_dict`)."""
     if not isinstance(document, dict):
         raise MapError(f"{source}: expected a JSON object at the top level")
-    bad = find_non_finite(document)
+    bad = find_non_finite(document) if scan_non_finite else None
     if bad is not None:
         raise MapError(f"{source}: {non_finite_message(*bad)}")
     fmt = document.get("format")
@@ -148,7 +156,8 @@ def load_map(path: str | os.PathLike[str]) -> SemanticMap:
             listed in :func:`map_from_dict`.
     """
     source = os.fspath(path)
-    return map_from_dict(parse_json(read_text(path, MapError), source, MapError), source)
+    text = read_text(path, MapError)
+    return map_from_dict(parse_json(text, source, MapError), source, may_hold_non_finite(text))
 
 
 # --------------------------------------------------------------------------- elements
@@ -171,8 +180,7 @@ def _slot_to_dict(slot: Slot) -> dict[str, Any]:
 def _slot_from_field(f: Field) -> Slot:
     corners = f["corners"].array((4, 2), within=MAX_COORDINATE)
     covariances = f["corner_covariances"].array((4, 2, 2))
-    for j, field in enumerate(f["corner_covariances"].items()):
-        check_covariance(field, covariances[j], MAX_VARIANCE)
+    check_covariances(f["corner_covariances"], covariances, MAX_VARIANCE)
     return Slot(
         id=f["id"].integer(),
         label=f["label"].optional_string(),

@@ -304,3 +304,43 @@ def test_a_folder_given_as_the_map_is_named_as_one(tmp_path: Path) -> None:
     folder.mkdir()
     with pytest.raises(MapError, match=r"maps: a folder, not a file$"):
         load_map(folder)
+
+
+def test_covariances_checked_together_decide_as_one_by_one() -> None:
+    """A slot's four corner covariances are checked in one batch (the map loads faster); the
+    batch refuses exactly what the single check refuses, naming the first bad one."""
+    from semslam.io._fields import Field, check_covariance, check_covariances
+
+    rng = np.random.default_rng(3)
+    bad_seen = 0
+    for trial in range(300):
+        a = rng.normal(size=(4, 2, 2))
+        stack = a @ np.swapaxes(a, 1, 2)  # positive semi-definite
+        k = int(rng.integers(4))
+        kind = trial % 5
+        if kind == 1:
+            stack[k, 0, 1] += 1e-3  # not symmetric
+        elif kind == 2:
+            stack[k] = np.diag([1.0, -1e-3])  # indefinite
+        elif kind == 3:
+            stack[k, 0, 0] = 1e300  # huge
+        elif kind == 4:
+            stack[k] = np.outer([1.0, 2.0], [1.0, 2.0])  # singular, still fine
+        doc = {"c": stack.tolist()}
+        one_by_one = None
+        for j in range(4):
+            try:
+                check_covariance(Field(doc, "m.json", MapError)["c"].items()[j], stack[j], 1e12)
+            except MapError as exc:
+                one_by_one = str(exc)
+                break
+        try:
+            check_covariances(Field(doc, "m.json", MapError)["c"], stack, 1e12)
+            together = None
+        except MapError as exc:
+            together = str(exc)
+        assert together == one_by_one
+        bad_seen += together is not None
+        if kind in (1, 2, 3):
+            assert together is not None and f"c/{k}" in together
+    assert bad_seen == 180
