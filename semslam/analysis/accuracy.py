@@ -327,7 +327,7 @@ class MapGeometry:
                 owner = np.arange(len(points))
             self._trees[kind] = (cKDTree(np.asarray(points, float).reshape(-1, 2)), owner)
         tree, owner = self._trees[kind]
-        if not tree.n:
+        if not tree.n or not np.isfinite(point).all():  # no pose, nothing in view (as before)
             return np.zeros(0, dtype=int)
         return np.unique(owner[np.asarray(tree.query_ball_point(point, reach), dtype=int)])
 

@@ -188,6 +188,10 @@ def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_
                     for k in seen:
                         seen[k] += whole.counts[k]
     assert all(n > 0 for n in seen.values())
+    nowhere = np.array([np.nan, 0.0, 0.0])
+    frame = _frame(geometry.around(nowhere, SensorModel(), IDEAL), nowhere, SensorModel(), IDEAL)
+    assert frame.counts == _frame(geometry, nowhere, SensorModel(), IDEAL).counts
+    assert frame.counts == {"corners": 0, "slots": 0, "tags": 0, "lines": 0}
     empty = MapGeometry(SemanticMap())
     frame = _frame(empty.around(np.zeros(2), SensorModel(), IDEAL), np.zeros(3), SensorModel(),
                    IDEAL)
