@@ -28,6 +28,7 @@ plus position and heading walks). Pure numpy.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -300,8 +301,8 @@ class MapGeometry:
         view = sensors.topview_half_m * math.sqrt(2.0) + _REACH_MARGIN
         tag_reach = (min(sensors.tag_range_limit, model.tag_range_limit) + abs(sensors.camera_x)
                      + _REACH_MARGIN)
-        near = object.__new__(MapGeometry)
-        near._trees = {}
+        near = copy.copy(self)
+        near._trees = {}  # its own KD-trees, if it is ever asked in turn
         corners = self._near("corners", self.corners, point, view)
         slots = np.unique(self.slot_of_corner[corners])
         whole = np.nonzero(np.isin(self.slot_of_corner, slots))[0]
