@@ -198,6 +198,13 @@ class MappingConfig(_Section):
         5, ge=1, description="iSAM2: updates between relinearisations (x update_every: 50 "
         "keyframes)"
     )
+    reorder_growth: float = Field(
+        2.0,
+        ge=0,
+        description="iSAM2 re-orders the whole Bayes tree (gtsam's adaptive reordering) when "
+        "its fill-in has grown to this many times that after the last full ordering; 0: never "
+        "(on `large` 2 cut iSAM2's time by a third, maps the same; BENCHMARKS.md)",
+    )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
         1e-5, gt=0, description="final LM stops when the error improves by less than this"
@@ -288,6 +295,13 @@ class MappingConfig(_Section):
     marking_min_support: int = Field(
         5, ge=1, description="detections before a line joins the graph (and the map)"
     )
+
+    @field_validator("reorder_growth", mode="after")
+    @classmethod
+    def _growth_beyond_one(cls, value: float) -> float:
+        if 0 < value <= 1:
+            raise ValueError(f"{value:g}: 0 (never) or a growth factor above 1")
+        return value
 
     @field_validator("calibration_walk", mode="after")
     @classmethod

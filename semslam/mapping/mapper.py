@@ -211,7 +211,9 @@ class Mapper:
         self.use_graph = config.optimizer == "isam2"
         self.robust = config.robust == "maxmix"
         self.null = NullHypothesis(config.null_weight, config.null_information_scale)
-        self.graph = Graph(config.relinearize_threshold, config.relinearize_skip)
+        self.graph = Graph(
+            config.relinearize_threshold, config.relinearize_skip, config.reorder_growth
+        )
         self.slots = SlotLandmarks()
         self.pool = SlotPool(config.pool_radius, config.pool_max_age)
         self.sightings: list[Sighting] = []
