@@ -97,6 +97,64 @@ def point_factor(edge: PointEdge2D, point_key: int) -> gtsam.CustomFactor:
     return gtsam.CustomFactor(noise, [a, point_key], error_function)
 
 
+class PointEdges:
+    """Many pose-to-point edges (``EDGE_SE2_XY``) evaluated and linearised together in numpy:
+    the residual, Jacobians and whitening of :func:`point_factor`, without a Python callback
+    per edge (which was most of a landmark graph's least-squares solve). For the
+    Levenberg-Marquardt loop of :mod:`semslam.mapping.levenberg` (``extra``)."""
+
+    def __init__(self, edges: Sequence[PointEdge2D], point_key: dict[int, int]) -> None:
+        self._keys = [(e.a, point_key[e.b]) for e in edges]
+        self._poses = sorted({a for a, _ in self._keys})
+        self._points = sorted({b for _, b in self._keys})
+        row_of_pose = {k: i for i, k in enumerate(self._poses)}
+        row_of_point = {k: i for i, k in enumerate(self._points)}
+        self._pose_row = np.array([row_of_pose[a] for a, _ in self._keys], dtype=np.intp)
+        self._point_row = np.array([row_of_point[b] for _, b in self._keys], dtype=np.intp)
+        self._measured = np.array([e.measurement for e in edges], dtype=float).reshape(-1, 2)
+        self._sqrt_information = np.array(
+            [_sqrt_information(np.asarray(e.information, dtype=float)) for e in edges]
+        ).reshape(-1, 2, 2)
+        self._unit = gtsam.noiseModel.Unit.Create(2)
+
+    def _whitened(self, values: gtsam.Values, jacobians: bool):
+        """Whitened residuals (M, 2) and, if asked, the whitened Jacobians with respect to
+        the pose (M, 2, 3) and the point (M, 2, 2)."""
+        poses = np.array(
+            [[p.x(), p.y(), p.theta()] for p in map(values.atPose2, self._poses)]
+        ).reshape(-1, 3)
+        points = np.array([values.atPoint2(k) for k in self._points]).reshape(-1, 2)
+        pose, d = poses[self._pose_row], points[self._point_row] - poses[self._pose_row, :2]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+        R = self._sqrt_information
+        whitened = np.einsum("mij,mj->mi", R, local - self._measured)
+        if not jacobians:
+            return whitened, None, None
+        Jp = np.zeros((len(local), 2, 3))
+        Jp[:, 0, 0] = Jp[:, 1, 1] = -1.0
+        Jp[:, 0, 2], Jp[:, 1, 2] = local[:, 1], -local[:, 0]
+        Jl = np.stack([np.column_stack([c, s]), np.column_stack([-s, c])], axis=1)
+        return whitened, R @ Jp, R @ Jl
+
+    def error(self, values: gtsam.Values) -> float:
+        """``1/2 sum |R r|^2`` over the edges (gtsam's factor error)."""
+        if not self._keys:
+            return 0.0
+        whitened, _, _ = self._whitened(values, False)
+        return 0.5 * float(np.sum(whitened * whitened))
+
+    def linearize(self, values: gtsam.Values) -> list[gtsam.JacobianFactor]:
+        """One whitened Jacobian factor per edge, as gtsam linearises :func:`point_factor`."""
+        if not self._keys:
+            return []
+        whitened, Ap, Al = self._whitened(values, True)
+        return [
+            gtsam.JacobianFactor(a, Ap[m], b, Al[m], -whitened[m], self._unit)
+            for m, (a, b) in enumerate(self._keys)
+        ]
+
+
 def _sqrt_information(information: FloatArray) -> FloatArray:
     """Upper-triangular R with ``R' R = information``."""
     return np.linalg.cholesky(information).T

@@ -18,6 +18,8 @@ it by at most ``relative_tolerance`` of it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import gtsam
 import numpy as np
 
@@ -37,6 +39,7 @@ def levenberg_marquardt(
     max_iterations: int,
     relative_tolerance: float,
     dims: dict[int, int] | None = None,
+    extra: Sequence = (),
 ) -> tuple[gtsam.Values, int]:
     """Minimise ``factors`` from ``values``; returns (solution, iterations).
 
@@ -46,6 +49,9 @@ def levenberg_marquardt(
         max_iterations: linearisations at most.
         relative_tolerance: stop when a kept step lowers the error by at most this share.
         dims: tangent dimension per key (default: from ``values``).
+        extra: more terms of the cost outside ``factors``, each with ``error(values)`` and
+            ``linearize(values)`` (a list of gtsam linear factors), e.g.
+            :class:`~semslam.mapping.g2o_factors.PointEdges`.
 
     Raises:
         RuntimeError: gtsam found the damped system indeterminate at every lambda up to
@@ -53,11 +59,18 @@ def levenberg_marquardt(
     """
     dims = tangent_dimensions(values) if dims is None else dims
     unit = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
-    error = factors.error(values)
+
+    def cost(at: gtsam.Values) -> float:
+        return factors.error(at) + sum(term.error(at) for term in extra)
+
+    error = cost(values)
     lam, iterations = INITIAL_LAMBDA, 0
     while iterations < max_iterations:
         iterations += 1
         linear = factors.linearize(values)
+        for term in extra:
+            for factor in term.linearize(values):
+                linear.push_back(factor)
         while lam <= MAX_LAMBDA:
             damped = gtsam.GaussianFactorGraph()
             damped.push_back(linear)
@@ -72,7 +85,7 @@ def levenberg_marquardt(
                     raise
                 lam *= 10.0
                 continue
-            new_error = factors.error(candidate)
+            new_error = cost(candidate)
             if new_error <= error:
                 break
             lam *= 10.0

@@ -96,6 +96,7 @@ from semslam.geometry import FloatArray
 from semslam.io.g2o import Edge2D, PointEdge2D, PoseGraph2D
 from semslam.mapping.g2o_factors import (
     CompiledMixture,
+    PointEdges,
     between_factor,
     between_residual,
     point_factor,
@@ -198,17 +199,24 @@ def _prior(vid: int, value: FloatArray) -> gtsam.PriorFactorPose2:
     )
 
 
-def _base_factors(problem: _Problem) -> gtsam.NonlinearFactorGraph:
-    """Priors on the fixed poses, plain edges and landmark edges."""
+def _base_factors(problem: _Problem, points: bool = True) -> gtsam.NonlinearFactorGraph:
+    """Priors on the fixed poses, plain edges and (unless ``points`` is False: then they are
+    :func:`_point_edges`) landmark edges."""
     g = problem.graph
     fg = gtsam.NonlinearFactorGraph()
     for vid in problem.fixed:
         fg.add(_prior(vid, g.vertices[vid]))
     for e in g.edges:
         fg.add(between_factor(e))
-    for pe in g.point_edges:
-        fg.add(point_factor(pe, problem.point_key[pe.b]))
+    if points:
+        for pe in g.point_edges:
+            fg.add(point_factor(pe, problem.point_key[pe.b]))
     return fg
+
+
+def _point_edges(problem: _Problem) -> PointEdges:
+    """The landmark edges evaluated together, for the Levenberg-Marquardt loop."""
+    return PointEdges(problem.graph.point_edges, problem.point_key)
 
 
 def _file_values(problem: _Problem) -> gtsam.Values:
@@ -220,11 +228,13 @@ def _file_values(problem: _Problem) -> gtsam.Values:
     return v
 
 
-def _lm(fg: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int):
+def _lm(fg: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
+        points: PointEdges | None = None):
     """Levenberg-Marquardt from Python (:mod:`semslam.mapping.levenberg`): the landmark and
     max-mixture factors are Python, which gtsam's own optimizer would call with copies of
-    the whole Values."""
-    return levenberg_marquardt(fg, values, max_iterations, LM_RELATIVE_TOLERANCE)
+    the whole Values. ``points``: landmark edges left out of ``fg``, evaluated together."""
+    extra = () if points is None else (points,)
+    return levenberg_marquardt(fg, values, max_iterations, LM_RELATIVE_TOLERANCE, extra=extra)
 
 
 def _model_cost(problem: _Problem, values: gtsam.Values) -> float:
@@ -436,14 +446,14 @@ def _is_chain(problem: _Problem) -> bool:
 
 
 def _least_squares(problem: _Problem, max_iterations: int, start: float) -> PoseGraphResult:
-    fg = _base_factors(problem)
+    fg, points = _base_factors(problem, points=False), _point_edges(problem)
     chosen = []
     for mix in problem.mixtures:
         weights = [c.weight for c in mix.components]
         k = int(np.argmax(weights))
         chosen.append(k)
         fg.add(between_factor(mix.components[k].edge))
-    values, iterations = _lm(fg, _file_values(problem), max_iterations)
+    values, iterations = _lm(fg, _file_values(problem), max_iterations, points)
     chosen_arr = np.array(chosen, dtype=int)
     accepted = np.array(
         [not mix.is_null[k] for mix, k in zip(problem.mixtures, chosen, strict=True)], dtype=bool
@@ -456,7 +466,7 @@ def _least_squares(problem: _Problem, max_iterations: int, start: float) -> Pose
         np.zeros(len(chosen), bool),
         iterations,
         0,
-        float(fg.error(values)),
+        float(fg.error(values) + points.error(values)),
         start,
         "none",
         "batch",
@@ -495,13 +505,13 @@ def plain_graph(graph: PoseGraph2D) -> tuple[gtsam.NonlinearFactorGraph, gtsam.V
 
 def _dcs(problem: _Problem, phi: float, probability: float, max_iterations: int, start: float):
     """Dynamic covariance scaling on each mixture's one measurement component."""
-    fg = _base_factors(problem)
+    fg = _base_factors(problem, points=False)
     edges = _single_measurements(problem.mixtures)
     for edge in edges:
         gaussian = gtsam.noiseModel.Gaussian.Information(edge.information)
         kernel = gtsam.noiseModel.mEstimator.DCS.Create(phi)
         fg.add(between_factor(edge, gtsam.noiseModel.Robust.Create(kernel, gaussian)))
-    values, iterations = _lm(fg, _file_values(problem), max_iterations)
+    values, iterations = _lm(fg, _file_values(problem), max_iterations, _point_edges(problem))
     gate = chi2_quantile(probability, 3)
     accepted = np.array([2.0 * between_factor(e).error(values) <= gate for e in edges], bool)
     chosen = np.array(

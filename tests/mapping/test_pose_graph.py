@@ -18,10 +18,13 @@ from semslam.io.g2o import (
 )
 from semslam.mapping.g2o_factors import (
     CompiledMixture,
+    PointEdges,
     between_residual,
     null_components,
+    point_factor,
     point_residual,
 )
+from semslam.mapping.levenberg import levenberg_marquardt
 from semslam.mapping.pose_graph import (
     innovation_chi2,
     leave_out_chi2,
@@ -297,6 +300,65 @@ def test_fix_lines_and_landmarks():
         seen = res.points[0] - res.poses[2, :2]
         true = landmark - truth[2, :2]
         assert np.linalg.norm(seen) == pytest.approx(np.linalg.norm(true), abs=0.1)
+
+
+def _landmark_graph(seed: int = 5) -> PoseGraph2D:
+    """A chain of 40 poses seeing 25 points, each with its own anisotropic information."""
+    rng = np.random.default_rng(seed)
+    g = PoseGraph2D()
+    truth = np.column_stack([np.arange(40) * 0.8, np.sin(np.arange(40) * 0.2), np.zeros(40)])
+    truth[:, 2] = np.arctan2(np.gradient(truth[:, 1]), 0.8)
+    points = rng.uniform([-2, -6], [34, 6], (25, 2))
+    for i, p in enumerate(truth):
+        g.vertices[i] = p + (rng.normal(0, [0.3, 0.3, 0.05]) if i else 0)
+        if i:
+            z = between(truth[i - 1], p) + rng.normal(0, SIGMA_ODO)
+            g.edges.append(Edge2D(i - 1, i, z, np.diag(1 / SIGMA_ODO**2)))
+    for j, q in enumerate(points):
+        g.points[100 + j] = q + rng.normal(0, 0.5, 2)
+        for i in np.flatnonzero(np.hypot(*(truth[:, :2] - q).T) < 8):
+            c, s_ = math.cos(truth[i, 2]), math.sin(truth[i, 2])
+            local = np.array([[c, s_], [-s_, c]]) @ (q - truth[i, :2])
+            a = rng.normal(size=(2, 2))
+            info = a @ a.T + np.eye(2) * 50
+            g.point_edges.append(PointEdge2D(int(i), 100 + j, local + rng.normal(0, 0.05, 2), info))
+    return g
+
+
+def test_landmark_edges_evaluated_together_are_gtsams_point_factors():
+    """PointEdges (numpy, one pass over every edge) gives the error and the linear factors
+    that gtsam gives for each point_factor, at a point that is not the optimum."""
+    g = _landmark_graph()
+    _, values = plain_graph(g)
+    key = {p: p for p in g.points}
+    together = PointEdges(g.point_edges, key)
+    one_by_one = gtsam.NonlinearFactorGraph()
+    for pe in g.point_edges:
+        one_by_one.add(point_factor(pe, pe.b))
+    assert together.error(values) == pytest.approx(one_by_one.error(values), rel=1e-12)
+    mine = together.linearize(values)
+    theirs = one_by_one.linearize(values)
+    assert len(mine) == theirs.size() == len(g.point_edges) > 100
+    for k, factor in enumerate(mine):
+        A, b = factor.jacobian()
+        A_ref, b_ref = theirs.at(k).jacobian()
+        np.testing.assert_allclose(A, A_ref, atol=1e-9)
+        np.testing.assert_allclose(b, b_ref, atol=1e-9)
+    assert PointEdges([], key).error(values) == 0.0 and PointEdges([], key).linearize(values) == []
+
+
+def test_least_squares_with_landmarks_is_the_solve_with_gtsams_point_factors():
+    g = _landmark_graph()
+    fast = optimize_pose_graph(g, "none")
+    factors, values = plain_graph(g)
+    solved, _ = levenberg_marquardt(factors, values, 100, 1e-7)
+    np.testing.assert_allclose(fast.poses[:, :2], [solved.atPose2(i).translation()
+                                                   for i in fast.ids], atol=1e-6)
+    np.testing.assert_allclose(fast.points, [solved.atPoint2(p) for p in fast.point_ids],
+                               atol=1e-6)  # the two stop within the tolerance, not on one bit
+    assert fast.error == pytest.approx(factors.error(solved), rel=1e-6)
+    dcs = optimize_pose_graph(g, "dcs")  # no mixture: the same least squares
+    np.testing.assert_allclose(dcs.points, fast.points, atol=1e-9)
 
 
 def test_a_point_no_edge_observes_stays_where_the_file_holds_it():
