@@ -203,7 +203,8 @@ class MappingConfig(_Section):
         ge=0,
         description="iSAM2 re-orders the whole Bayes tree (gtsam's adaptive reordering) when "
         "its fill-in has grown to this many times that after the last full ordering; 0: never "
-        "(on `large` 2 cut iSAM2's time by a third, maps the same; BENCHMARKS.md)",
+        "(on `large` worlds 1-5, 2 cut iSAM2's time by a fifth in all, one world slower, maps "
+        "the same; BENCHMARKS.md)",
     )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
