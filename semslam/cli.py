@@ -313,19 +313,21 @@ def localize(
 ) -> None:
     """Track a drive against a map, frame by frame: pose, covariance and status."""
     from semslam.config import load_config, with_overrides
-    from semslam.pipeline.localize import localize_drive, parse_init
+    from semslam.pipeline.localize import localize_drive, output_paths, parse_init
     from semslam.reporting import print_localize_summary
 
     try:
         out = _output_file(output)
-        track = out.with_suffix(".csv")
+        track, settings = output_paths(out)
         if track == out:
             raise SemslamError(f"-o {output}: the per-frame track CSV goes to {track} too; "
                                "name the trajectory .tum")
-        if track.is_dir():
-            raise SemslamError(f"-o {output}: {track} (the per-frame track) is a folder")
-        _refuse_drive_files(drive, [out, track], output)
-        _refuse_inputs([out, track], {"map": map_path, "--config file": config}, output)
+        for path, what in ((track, "the per-frame track"), (settings, "the configuration")):
+            if path.is_dir():
+                raise SemslamError(f"-o {output}: {path} ({what}) is a folder")
+        _refuse_drive_files(drive, [out, track, settings], output)
+        _refuse_inputs([out, track, settings], {"map": map_path, "--config file": config},
+                       output)
         parse_init(init)
         cfg = with_overrides(load_config(config), localization={"update": _value(update)})
         summary = localize_drive(drive, map_path, out, observations.value, init, cfg, progress)

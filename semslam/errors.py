@@ -34,5 +34,10 @@ class PerceptionError(SemslamError):
     """A detector was given input it cannot use (image type, shape, family, intrinsics)."""
 
 
+class MarkingInputError(PerceptionError, ValueError):
+    """The painted-line detector was given an image, mask, prior or parameter it cannot use
+    (also a ``ValueError``, as numpy's own argument errors are)."""
+
+
 class MappingError(SemslamError):
     """The mapper could not solve its factor graph (an indeterminate system)."""

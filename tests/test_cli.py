@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from semslam import __version__
 from semslam.cli import app
+from semslam.config import load_config
 from semslam.io import Drive
 
 runner = CliRunner()
@@ -281,6 +282,9 @@ def test_localize_against_the_true_map_writes_tum_and_track_and_evaluates(small_
     auto = _run("localize", small_drive, "--map", small_drive / "world.json", "-o",
                 tmp_path / "auto.tum", "--init", "auto", "--update", "sigma", "--no-progress")
     assert auto.exit_code == 0, auto.output
+    # the settings in force beside the results, readable as --config
+    assert load_config(traj.with_name("traj.config.json")).localization.update == "ekf"
+    assert load_config(tmp_path / "auto.config.json").localization.update == "sigma"
 
 
 def test_localize_refuses_a_broken_map_and_a_bad_init(small_drive, tmp_path):

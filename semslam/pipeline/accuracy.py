@@ -3,7 +3,8 @@
 Reads the map (and the route, TUM), runs :mod:`semslam.analysis.accuracy`, writes
 ``accuracy.json`` (the figures, the worst stretches of the route) and
 ``accuracy_map.png`` (the map with the grid's single-frame sigma as a heat map and the
-route coloured by the filtered sigma) into the output folder, atomically.
+route coloured by the filtered sigma) into the output folder, atomically; with the
+``localizer`` grade also ``config.json``, the configuration it was predicted for.
 
 Grades: Hofmann's ``automotive`` and ``precise`` (an ideal filter that uses every landmark
 in view in every frame), or ``localizer``: semslam's own localizer as configured
@@ -110,6 +111,10 @@ def predicted_accuracy(
     from semslam.io.tum import read_tum
     from semslam.plots import accuracy_figure
 
+    if grade == "localizer" and cfg is None:
+        from semslam.config import load_config
+
+        cfg = load_config(None)
     odometry, sensors, model = prediction_model(grade, cfg)
     for name, value in (("--grid-step", grid_step), ("--threshold", threshold)):
         if not (math.isfinite(value) and value > 0):
@@ -165,11 +170,17 @@ def predicted_accuracy(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     picture = accuracy_figure(semantic_map, xs, ys, grid, route_xy, route_sigma, threshold)
-    with atomic_group():  # both files or neither
+    files = [out / "accuracy.json", out / "accuracy_map.png"]
+    with atomic_group():  # every file or none
         atomic_write_bytes(out / "accuracy_map.png", picture)
         atomic_write_text(out / "accuracy.json",
                           json.dumps(result, indent=2, allow_nan=False) + "\n")
-    result["files"] = [os.fspath(out / "accuracy.json"), os.fspath(out / "accuracy_map.png")]
+        if grade == "localizer" and cfg is not None:
+            from semslam.config import config_to_json
+
+            atomic_write_text(out / "config.json", config_to_json(cfg))
+            files.append(out / "config.json")
+    result["files"] = [os.fspath(f) for f in files]
     return result
 
 

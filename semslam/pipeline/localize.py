@@ -1,9 +1,10 @@
 """`semslam localize`: track a drive against a map; write TUM + per-frame CSV.
 
-Writes ``TRAJ.tum`` (the frames with a pose, for evo) and ``TRAJ.csv`` beside it (pose,
+Writes ``TRAJ.tum`` (the frames with a pose, for evo), ``TRAJ.csv`` beside it (pose,
 3x3 covariance, status, associated and rejected counts per frame; see
-:mod:`semslam.io.track_csv`). Frames before the first pose (``--init auto``) are in
-neither file; the summary says how long finding the pose took.
+:mod:`semslam.io.track_csv`) and ``TRAJ.config.json`` (the configuration used). Frames
+before the first pose (``--init auto``) are in neither file; the summary says how long
+finding the pose took.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semslam.config import SemslamConfig
+from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import DriveError
 from semslam.pipeline.mapping import check_observation_times, load_observations
 from semslam.progress import progress_bar
@@ -34,6 +35,11 @@ class LocalizeSummary:
     elapsed_s: float
     driving_s: float
     odometry_errors: tuple | None = None  # ((scale, bias), (sigmas)) at the end, or None
+
+
+def output_paths(trajectory: Path) -> tuple[Path, Path]:
+    """The per-frame track CSV and the configuration written beside ``trajectory``."""
+    return trajectory.with_suffix(".csv"), trajectory.with_name(trajectory.stem + ".config.json")
 
 
 MAX_INIT_M = 1e6  # metres: no garage is larger; far beyond it, floats overflow
@@ -102,7 +108,7 @@ def localize_drive(
 
     ``init``: "x,y,yaw", "auto", or None for the drive's declared start pose."""
     from semslam.io import Drive, load_map, write_tum
-    from semslam.io.atomic import atomic_group
+    from semslam.io.atomic import atomic_group, atomic_write_text
     from semslam.io.track_csv import Track, write_track_csv
     from semslam.localization.localizer import Localizer
     from semslam.localization.relocalize import MAX_SLOTS_PER_LABEL
@@ -127,7 +133,7 @@ def localize_drive(
             bar.update(1)
     elapsed = time.perf_counter() - started
     posed = [e for e in estimates if np.all(np.isfinite(e.pose))]
-    track_path = output.with_suffix(".csv")
+    track_path, config_path = output_paths(output)
     if not posed:
         repeated = localizer.relocalizer.repeated_labels
         hint = (f" ({repeated} of its slot labels are on more than {MAX_SLOTS_PER_LABEL} slots "
@@ -146,9 +152,10 @@ def localize_drive(
         np.array([e.associated for e in posed]),
         np.array([e.rejected for e in posed]),
     )
-    with atomic_group():  # the trajectory and its track together, or neither
+    with atomic_group():  # the trajectory, its track and its settings together, or none
         write_tum(output, t, poses)
         write_track_csv(track_path, track)
+        atomic_write_text(config_path, config_to_json(config))
     counts: dict[str, int] = {}
     for e in estimates:
         counts[e.status] = counts.get(e.status, 0) + 1

@@ -16,7 +16,7 @@ from typing import Any
 
 from semslam.config import SemslamConfig
 from semslam.errors import DriveError, FormatError, PerceptionError, SemslamError
-from semslam.pipeline.workers import process_pool
+from semslam.pipeline.workers import pool_map, process_pool
 from semslam.progress import progress_bar
 from semslam.types import FrameObservations
 
@@ -107,7 +107,7 @@ def perceive_drive(
                 bar.update(len(chunk))
             return out
         with process_pool(workers, _init_worker, init_args) as pool:
-            for part in pool.map(_perceive_frames, chunks):
+            for part in pool_map(pool, _perceive_frames, chunks, "perception"):
                 out.extend(part)
                 bar.update(len(part))
     return out

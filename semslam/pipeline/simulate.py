@@ -16,7 +16,7 @@ from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
 from semslam.errors import SimulationError
 from semslam.pipeline.drive_output import staged_drive_folder
-from semslam.pipeline.workers import process_pool
+from semslam.pipeline.workers import pool_map, process_pool
 from semslam.progress import progress_bar
 
 
@@ -108,7 +108,7 @@ def _render_images(
                 bar.update(n)
             return
         with process_pool(render.workers, _init_render_worker, init_args) as pool:
-            for n in pool.map(_render_frames, jobs):
+            for n in pool_map(pool, _render_frames, jobs, "rendering"):
                 bar.update(n)
 
 

@@ -192,9 +192,12 @@ def test_accuracy_command_takes_the_localizer_grade(tmp_path):
     assert result.exit_code == 0, result.output
     doc = json.loads(result.stdout)
     assert doc["grade"] == "localizer" and doc["odometry"]["scale_sigma"] == 0.02
+    written = json.loads((tmp_path / "acc" / "config.json").read_text())  # what it predicted for
+    assert written["localization"] == LocalizationConfig().model_dump(mode="json")
     hofmann = predicted_accuracy(tmp_path / "map.json", tmp_path / "h", tmp_path / "route.tum",
                                  grid_step=4.0)
     assert hofmann["odometry"]["scale_sigma"] == 0.0
+    assert not (tmp_path / "h" / "config.json").exists()  # Hofmann's grades read no config
     with pytest.raises(ConfigError, match="--grade: choose one of automotive, precise, "
                                           "localizer, got 'bad'"):
         prediction_model("bad")

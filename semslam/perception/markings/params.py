@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from semslam.errors import SemslamError
+from semslam.errors import MarkingInputError
 
 FEATURES = (
     "width_m",  # S: mean painted width
@@ -31,10 +31,6 @@ FEATURES = (
 FEATURE_SCALES = np.array(
     [0.1, 255.0, 30.0, 1.0, 50.0, 50.0, 50.0, 50.0, 50.0, 50.0, 1.0, 1.0, 5.0]
 )
-
-
-class MarkingInputError(SemslamError, ValueError):
-    """The marking detector was given an image, mask or prior it cannot use."""
 
 
 @dataclass(frozen=True)
