@@ -159,7 +159,7 @@ def main(
 
 @app.command()
 def simulate(
-    out_dir: Annotated[Path, typer.Argument(help="Drive folder to write.")],
+    out_dir: Annotated[str, typer.Argument(metavar="OUT_DIR", help="Drive folder to write.")],
     preset: Annotated[PresetName, typer.Option(help="World size.")] = PresetName.garage,
     seed: Annotated[int, typer.Option(help="Fixes the world.")] = 0,
     drive: Annotated[int, typer.Option(help="Another route and noise through the same world.")] = 0,
@@ -181,9 +181,9 @@ def simulate(
     try:
         _at_least(seed, 0, "--seed")
         _at_least(drive, 0, "--drive")
-        _output_folder(str(out_dir), "OUT_DIR")
+        out = _output_folder(out_dir, "OUT_DIR")
         placed = None if tags is None else read_proposed_tags(tags)
-        summary = run(out_dir, preset.value, seed, drive, images, load_config(config), progress,
+        summary = run(out, preset.value, seed, drive, images, load_config(config), progress,
                       placed)
     except (SemslamError, OSError) as e:
         _fail(e)

@@ -614,3 +614,26 @@ def test_a_drive_that_stands_still_says_why_its_map_is_empty(small_drive, tmp_pa
     result = _run("map", drive, "-o", tmp_path / "m.json", "--no-progress")
     assert result.exit_code == 0, result.output
     assert "nothing mapped" in result.output and "never moved" in result.output
+
+
+def test_simulate_refuses_an_empty_out_dir():
+    _fails(_run("simulate", "", "--preset", "small", "--no-images"), "OUT_DIR: empty path")
+
+
+def test_simulated_values_out_of_range_name_the_settings(tmp_path):
+    config = tmp_path / "loud.json"
+    config.write_text('{"simulation": {"odometry_noise": {"speed_sigma": 1000}}}')
+    out = tmp_path / "drive"
+    line = _fails(_run("simulate", out, "--preset", "small", "--no-images", "--no-progress",
+                       "--config", config), "odometry.csv", "speed", "simulation settings",
+                  "nothing was written")
+    assert "dump-config" in line and not out.exists()
+
+
+def test_an_unsolvable_graph_names_the_drive_and_the_settings(small_drive, tmp_path):
+    config = tmp_path / "tiny.json"
+    config.write_text('{"mapping": {"marking_sigma": 1e-300}}')
+    out = tmp_path / "map.json"
+    _fails(_run("map", small_drive, "-o", out, "--config", config, "--no-progress"),
+           str(small_drive), "could not be solved", "mapping sigma", "dump-config")
+    assert not out.exists()

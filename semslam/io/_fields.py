@@ -138,13 +138,16 @@ class Field:
             self.fail(f"must be <= {maximum!r}, got {v!r}")
         return v
 
-    def integer(self, minimum: int | None = None) -> int:
-        """An integer (``3.0`` is refused as a sign of a wrong field)."""
+    def integer(self, minimum: int | None = None, maximum: int | None = None) -> int:
+        """An integer (``3.0`` is refused as a sign of a wrong field), optionally within
+        ``[minimum, maximum]``."""
         v = self.value
         if isinstance(v, bool) or not isinstance(v, int):
             self.fail(f"expected an integer, got {describe(v)}")
         if minimum is not None and v < minimum:
-            self.fail(f"must be >= {minimum}, got {v}")
+            self.fail(f"must be >= {minimum}, got {int_text(v)}")
+        if maximum is not None and v > maximum:
+            self.fail(f"must be <= {maximum}, got {int_text(v)}")
         return v
 
     def string(self, nonempty: bool = False) -> str:
@@ -189,6 +192,14 @@ class Field:
         if n is not None and len(elements) != n:
             self.fail(f"expected {n} {_element_name(shape)}, got {len(elements)}")
         return [e._nested(shape[1:]) for e in elements]
+
+
+def int_text(v: int) -> str:
+    """An integer for a one-line message: its digits when short, else rounded."""
+    if abs(v) < 10**12:
+        return str(v)
+    digits = len(str(abs(v)))
+    return f"{'-' if v < 0 else ''}{str(abs(v))[0]}e+{digits - 1} (rounded)"
 
 
 def check_within(f: Field, values: Any, within: float) -> None:

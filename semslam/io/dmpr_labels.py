@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from semslam.errors import FormatError
 from semslam.geometry import FloatArray
-from semslam.io._fields import Field
+from semslam.io._fields import Field, int_text
 from semslam.io._json import find_non_finite, non_finite_message, parse_json
 from semslam.io._text import read_text
 from semslam.io.atomic import atomic_write_text
@@ -207,10 +207,10 @@ def _slot(f: Field, n_marks: int) -> list[int]:
         values.append(int(v))
     i, j, kind, angle = values
     if not 0 <= angle <= 180:
-        items[3].fail(f"angle must be 0 to 180 degrees, got {angle}")
+        items[3].fail(f"angle must be 0 to 180 degrees, got {int_text(angle)}")
     for k, idx in enumerate((i, j)):
         if not 1 <= idx <= n_marks:
-            items[k].fail(f"mark index {idx} out of range 1..{n_marks}")
+            items[k].fail(f"mark index {int_text(idx)} out of range 1..{n_marks}")
     if i == j:
         items[1].fail(f"the slot joins mark {i} to itself")
     if kind not in SLOT_TYPES:

@@ -38,6 +38,9 @@ from semslam.io.errors import DriveFormatError
 DRIVE_FORMAT = "semslam-drive"
 DRIVE_VERSION = 1
 _OBSERVATION_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
+MAX_START = 1e5
+"""Bound on each start-pose number (m, m, rad): a drive starting farther out would leave the
+map's own range (1e6 m) or overflow the filter's arithmetic."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,7 +104,7 @@ def drive_info_from_dict(document: Any, source: str = "<dict>") -> DriveInfo:
     source_field = root.get("source")
     return DriveInfo(
         name=root["name"].string(nonempty=True),
-        start_pose=None if start is None else start.array((3,)),
+        start_pose=None if start is None else start.array((3,), within=MAX_START),
         frame_rate=root["frame_rate"].number(positive=True),
         source={} if source_field is None else dict(source_field.obj()),
         observations=tuple(names),

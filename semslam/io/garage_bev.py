@@ -111,8 +111,8 @@ def open_garage_bev(folder: str | os.PathLike[str]) -> GarageBevDrive:
     t, poses = read_odometry_poses(root / ODOMETRY_TUM)
     pose_frame = match_times(t, frame_times, root / ODOMETRY_TUM)
     frame_to_pose = {int(f): i for i, f in enumerate(pose_frame) if f >= 0}
-    frames, paths, pose_index = [], [], []
-    for path in sorted((root / MASKS_DIR).iterdir()):
+    numbered: dict[int, Path] = {}  # frame number -> mask, in frame order below
+    for path in (root / MASKS_DIR).iterdir():
         m = _MASK_NAME.match(path.name)
         if m is None or not path.is_file():
             continue
@@ -121,9 +121,15 @@ def open_garage_bev(folder: str | os.PathLike[str]) -> GarageBevDrive:
             raise DriveError(
                 f"{os.fspath(path)}: frame {k} but {COLOR_TXT} lists {len(frame_times)} frames"
             )
+        if k in numbered:
+            raise DriveError(f"{os.fspath(path)}: frame {k} has a second mask, "
+                             f"{numbered[k].name}")
+        numbered[k] = path
+    frames, paths, pose_index = [], [], []
+    for k in sorted(numbered):
         if k in frame_to_pose:  # frames before the odometry starts have none: dropped
             frames.append(k)
-            paths.append(path)
+            paths.append(numbered[k])
             pose_index.append(frame_to_pose[k])
     if not frames:
         raise DriveError(f"{os.fspath(root / MASKS_DIR)}: no mask frame has an odometry pose")
@@ -235,10 +241,14 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
             point is not in point.csv, a line whose two end points coincide; the message
             names the file and line.
     """
-    root = Path(folder)
+    given = Path(folder)
+    root = given
     if not (root / POINT_CSV).is_file() and (root / VECTOR_MAP_DIR).is_dir():
         root = root / VECTOR_MAP_DIR
     points_path, lines_path = root / POINT_CSV, root / LINE_CSV
+    if not points_path.is_file() and not lines_path.is_file() and root == given:
+        raise DriveError(f"{os.fspath(given)}: no vector map there (neither {POINT_CSV} and "
+                         f"{LINE_CSV} nor a {VECTOR_MAP_DIR}/ folder holding them)")
     for p in (points_path, lines_path):
         if not p.is_file():
             raise DriveError(f"{os.fspath(p)}: missing (vector map)")

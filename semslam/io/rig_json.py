@@ -148,13 +148,22 @@ def _exactly(f: Field, n: int) -> list[Field]:
     return items
 
 
+TOPVIEW_MAX_PX = 4096
+"""Largest top view side, pixels (ps2.0's is 600)."""
+TOPVIEW_METRES_PER_PX = (1e-3, 0.1)
+"""Range of a top view's pixel size, metres (ps2.0's 1/60 m, the garage masks' 0.01 m): the
+detectors resample a view to their own scale, which a pixel far outside asks for a view of
+terabytes or of a few pixels."""
+
+
 def _topview_from_field(f: Field) -> TopviewSpec:
     f.only("size_px", "metres_per_px", "ego_length_m", "ego_width_m")
+    low, high = TOPVIEW_METRES_PER_PX
     return TopviewSpec(
-        size_px=f["size_px"].integer(1),
-        metres_per_px=f["metres_per_px"].number(positive=True),
-        ego_length_m=f["ego_length_m"].number(minimum=0.0),
-        ego_width_m=f["ego_width_m"].number(minimum=0.0),
+        size_px=f["size_px"].integer(1, TOPVIEW_MAX_PX),
+        metres_per_px=f["metres_per_px"].number(minimum=low, maximum=high),
+        ego_length_m=f["ego_length_m"].number(minimum=0.0, maximum=50.0),
+        ego_width_m=f["ego_width_m"].number(minimum=0.0, maximum=50.0),
     )
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
-from semslam.errors import DriveError
+from semslam.errors import DriveError, MappingError
 from semslam.geometry import FloatArray
 from semslam.progress import progress_bar
 
@@ -103,11 +103,17 @@ def build_map(
     check_observation_times(drive_folder, frames, odometry.t)
     started = time.perf_counter()
     mapper = Mapper(config.mapping, drive.start_pose, odometry.t, odometry.speed, odometry.yaw_rate)
-    with progress_bar(len(frames), "mapping", show_progress) as bar:
-        for frame in frames:
-            mapper.add_frame(frame)
-            bar.update(1)
-    result = mapper.finish()
+    try:
+        with progress_bar(len(frames), "mapping", show_progress) as bar:
+            for frame in frames:
+                mapper.add_frame(frame)
+                bar.update(1)
+        result = mapper.finish()
+    except MappingError as e:  # gtsam's words alone name no file and no setting
+        raise MappingError(
+            f"{drive_folder}: {e}; a mapping sigma far from the sensors' (see `semslam "
+            "dump-config`) or odometry far off can make the graph unsolvable"
+        ) from None
     elapsed = time.perf_counter() - started
     driving = float(frames[-1].t - frames[0].t) if frames else 0.0
     statistics = {

@@ -14,7 +14,7 @@ import numpy as np
 
 from semslam import __version__
 from semslam.config import SemslamConfig, config_to_json
-from semslam.errors import SimulationError
+from semslam.errors import FormatError, SimulationError
 from semslam.pipeline.drive_output import staged_drive_folder
 from semslam.pipeline.workers import pool_map, process_pool
 from semslam.progress import progress_bar
@@ -115,18 +115,9 @@ def _render_images(
 # --------------------------------------------------------------------------- simulate
 
 
-def simulate(
-    out_dir: Path,
-    preset: str,
-    seed: int,
-    drive_index: int,
-    images: bool,
-    config: SemslamConfig,
-    show_progress: bool | None = None,
-    placed_tags: np.ndarray | None = None,
-) -> SimulationSummary:
-    """Simulate a drive and write it as a drive folder at ``out_dir``; ``placed_tags``
-    (K, 3) are tags added to the world (a `semslam plan-tags` plan to try out)."""
+def _write_drive(tmp: Path, sim, preset: str, seed: int, drive_index: int, images: bool,
+                 config: SemslamConfig, show_progress: bool | None, placed_tags) -> None:
+    """Every file of the simulated drive ``sim`` into the staging folder ``tmp``."""
     from semslam.io import (
         DriveInfo,
         FrameIndex,
@@ -140,50 +131,72 @@ def simulate(
         write_tum,
     )
     from semslam.io.atomic import atomic_write_text
+
+    rec = sim.record
+    save_rig(tmp / "rig.json", sim.rig)
+    write_odometry(tmp / "odometry.csv", Odometry(rec.t, rec.odo_speed, rec.odo_yaw_rate))
+    write_tum(tmp / "groundtruth.tum", sim.frame_times, sim.frame_poses)
+    save_map(tmp / "world.json", sim.world.to_map())
+    write_observations(tmp / "observations" / "exact.jsonl", sim.exact)
+    write_observations(tmp / "observations" / "noisy.jsonl", sim.noisy)
+    fmt = config.simulation.render.image_format
+    n = len(sim.frame_times)
+    columns = (
+        {
+            "topview": [f"images/topview/{i:06d}.{fmt}" for i in range(n)],
+            "front": [f"images/front/{i:06d}.{fmt}" for i in range(n)],
+        }
+        if images
+        else {}
+    )
+    write_frames(tmp / "frames.csv", FrameIndex(sim.frame_times, columns))
+    if images:
+        _render_images(tmp, sim, config, show_progress, placed_tags)
+    write_drive_info(
+        tmp / "drive.json",
+        DriveInfo(
+            name=f"{preset}-seed{seed}-drive{drive_index}",
+            start_pose=sim.frame_poses[0],
+            frame_rate=config.simulation.drive.frame_rate,
+            source={
+                "generator": f"semslam {__version__}",
+                "simulator": {
+                    "preset": preset,
+                    "seed": seed,
+                    "drive": drive_index,
+                    "placed_tags": 0 if placed_tags is None else len(placed_tags),
+                },
+            },
+            observations=("exact", "noisy"),
+        ),
+    )
+    atomic_write_text(tmp / "config.json", config_to_json(config))
+
+
+def simulate(
+    out_dir: Path,
+    preset: str,
+    seed: int,
+    drive_index: int,
+    images: bool,
+    config: SemslamConfig,
+    show_progress: bool | None = None,
+    placed_tags: np.ndarray | None = None,
+) -> SimulationSummary:
+    """Simulate a drive and write it as a drive folder at ``out_dir``; ``placed_tags``
+    (K, 3) are tags added to the world (a `semslam plan-tags` plan to try out)."""
     from semslam.simulation.scenario import simulate_drive
 
     started = time.perf_counter()
     with staged_drive_folder(out_dir, SimulationError) as tmp:
         sim = simulate_drive(preset, seed, drive_index, config.simulation, placed_tags)
-        rec = sim.record
-        save_rig(tmp / "rig.json", sim.rig)
-        write_odometry(tmp / "odometry.csv", Odometry(rec.t, rec.odo_speed, rec.odo_yaw_rate))
-        write_tum(tmp / "groundtruth.tum", sim.frame_times, sim.frame_poses)
-        save_map(tmp / "world.json", sim.world.to_map())
-        write_observations(tmp / "observations" / "exact.jsonl", sim.exact)
-        write_observations(tmp / "observations" / "noisy.jsonl", sim.noisy)
-        fmt = config.simulation.render.image_format
-        n = len(sim.frame_times)
-        columns = (
-            {
-                "topview": [f"images/topview/{i:06d}.{fmt}" for i in range(n)],
-                "front": [f"images/front/{i:06d}.{fmt}" for i in range(n)],
-            }
-            if images
-            else {}
-        )
-        write_frames(tmp / "frames.csv", FrameIndex(sim.frame_times, columns))
-        if images:
-            _render_images(tmp, sim, config, show_progress, placed_tags)
-        write_drive_info(
-            tmp / "drive.json",
-            DriveInfo(
-                name=f"{preset}-seed{seed}-drive{drive_index}",
-                start_pose=sim.frame_poses[0],
-                frame_rate=config.simulation.drive.frame_rate,
-                source={
-                    "generator": f"semslam {__version__}",
-                    "simulator": {
-                        "preset": preset,
-                        "seed": seed,
-                        "drive": drive_index,
-                        "placed_tags": 0 if placed_tags is None else len(placed_tags),
-                    },
-                },
-                observations=("exact", "noisy"),
-            ),
-        )
-        atomic_write_text(tmp / "config.json", config_to_json(config))
+        try:  # every file is read back as written: a value out of range came from the settings
+            _write_drive(tmp, sim, preset, seed, drive_index, images, config, show_progress,
+                         placed_tags)
+        except FormatError as e:
+            raise SimulationError(
+                f"{e}; the simulation settings in force made it (see `semslam dump-config`)"
+            ) from None
     steps = np.linalg.norm(np.diff(sim.frame_poses[:, :2], axis=0), axis=1)
     return SimulationSummary(
         folder=out_dir,

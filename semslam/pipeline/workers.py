@@ -63,7 +63,8 @@ def pool_map(
         yield from results
     except BrokenProcessPool:
         raise SemslamError(
-            f"{what}: a worker process died (killed by the system, out of memory?)"
+            f"{what}: a worker process died or could not start (killed by the system, "
+            "out of memory?)"
         ) from None
 
 

@@ -215,6 +215,10 @@ def test_drive_info_round_trip(tmp_path: Path) -> None:
             lambda d: d.update(start_pose=[1, 2]),
             r"drive\.json: start_pose: expected 3 numbers, got 2",
         ),
+        (
+            lambda d: d.update(start_pose=[1e300, 0, 0]),  # the filter would overflow
+            r"drive\.json: start_pose: 1e\+300 is out of range \(\|value\| <= 100000\)",
+        ),
         (lambda d: d.update(frame_rate=0), r"drive\.json: frame_rate: must be > 0"),
         (
             lambda d: d.update(observations=["a/b"]),

@@ -211,6 +211,26 @@ def _write_recording(root: Path) -> Path:
     return root
 
 
+def test_masks_are_read_in_frame_order_and_a_frame_with_two_masks_is_refused(
+    tmp_path: Path,
+) -> None:
+    root = _write_recording(tmp_path / "r")
+    (root / "masks" / "000004.png").rename(root / "masks" / "4.png")  # sorts before 000002
+    assert open_garage_bev(root).mask_frames.tolist() == [2, 4]
+    (root / "masks" / "0000002.png").write_bytes(b"")
+    with pytest.raises(DriveError, match=r"masks/0+2\.png: frame 2 has a second mask, 0+2\.png"):
+        open_garage_bev(root)
+
+
+def test_a_folder_with_no_vector_map_is_named(tmp_path: Path) -> None:
+    with pytest.raises(DriveError, match=rf"{tmp_path}: no vector map there"):
+        read_vector_map(tmp_path)
+    with pytest.raises(DriveError, match=r"vector_map/line\.csv: missing"):
+        _write_recording(tmp_path / "r")
+        (tmp_path / "r" / "vector_map" / "line.csv").unlink()
+        read_vector_map(tmp_path / "r")
+
+
 def test_small_recording(tmp_path: Path) -> None:
     rec = open_garage_bev(_write_recording(tmp_path / "r"))
     assert rec.mask_frames.tolist() == [2, 4]  # frame 0 is before the odometry

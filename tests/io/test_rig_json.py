@@ -90,7 +90,15 @@ def _document() -> dict:
         ),
         (
             lambda d: d["topview"].update(metres_per_px=0),
-            r"rig\.json: topview/metres_per_px: must be > 0",
+            r"rig\.json: topview/metres_per_px: must be >= 0\.001",
+        ),
+        (  # the detectors would ask for a view of terabytes
+            lambda d: d["topview"].update(metres_per_px=1e-9),
+            r"rig\.json: topview/metres_per_px: must be >= 0\.001, got 1e-09",
+        ),
+        (
+            lambda d: d["topview"].update(size_px=10**30),
+            r"rig\.json: topview/size_px: must be <= 4096, got 1e\+30 \(rounded\)",
         ),
         (lambda d: d["vehicle"].pop("wheelbase"), r"rig\.json: vehicle: missing field 'wheelbase'"),
         (
