@@ -74,6 +74,7 @@ class Associations:
     # measurement holds all their corners, as one holds all the frame's markings)
     slot_observations: list[int] = field(default_factory=list)  # the frame's slot of each
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
+    unmapped: int = 0  # rejected painted lines seen where the map holds none
     count: int = 0  # associated observations
 
     @property
@@ -296,6 +297,22 @@ class LocalMap:
         reach = float(np.abs(vE).max()) + cfg.search_radius / 2 + _MARKING_SAMPLE
         # every (detection, local marking) pair is a candidate; the tests below sort them
         local = self._local_markings.around(pose, reach)
+        # where the map holds no line within the detections' range of the car (a stretch the
+        # mapping drive did not see well), the lines rejected are paint the map does not
+        # hold: no evidence against the pose, as lines that fit none of the map's lines in
+        # view are (counted at the end, when the rejections are known)
+        seen_to = float(np.hypot(*vE.reshape(-1, 2).T).max())
+        unheld = bool(_farther_than(pose[None, :2], self.marking_a[local],
+                                    self.marking_b[local], seen_to)[0])
+        rejected_before = out.rejected["marking"]
+        self._match_markings(out, pose, P, vE, mE, sigma, length, local, s, c)
+        if unheld:
+            out.unmapped += out.rejected["marking"] - rejected_before
+
+    def _match_markings(self, out, pose, P, vE, mE, sigma, length, local, s, c) -> None:
+        """Houben's tests on every (detection, local marking) pair, then the winners'
+        stacked measurement (see :meth:`_markings`)."""
+        cfg = self.cfg
         det = np.arange(len(vE)).repeat(len(local))
         own = np.broadcast_to(local, (len(vE), len(local))).reshape(-1)
         u, n = self._marking_u[own], self._marking_n[own]  # (pairs, 2): along, across
@@ -371,6 +388,16 @@ class LocalMap:
                 reach=cfg.marking_clamp_reach,
             )
         self._accept(out, "marking", m, observations=len(good))
+
+
+def _farther_than(points: FloatArray, a: FloatArray, b: FloatArray, distance: float) -> np.ndarray:
+    """Per point (N, 2): is every segment ``a -> b`` (M, 2) farther than ``distance`` (m)?"""
+    ab = b - a
+    t = np.einsum("nmk,mk->nm", points[:, None] - a, ab) / np.maximum(
+        np.einsum("mk,mk->m", ab, ab), 1e-12)
+    nearest = a + np.clip(t, 0.0, 1.0)[..., None] * ab  # (N, M, 2)
+    gap = points[:, None] - nearest
+    return ~(np.einsum("nmk,nmk->nm", gap, gap) < distance**2).any(axis=1)
 
 
 def _d2(m, pose: FloatArray, P: FloatArray) -> float:

@@ -9,7 +9,9 @@ Per frame (observations in the vehicle frame, time ``t``):
    whole frame is dropped if its normalised innovation exceeds the frame gate (Houben);
 4. health: ``tracking`` when an update was applied, ``coasting`` when nothing was
    applied, ``lost`` when the position uncertainty exceeds its limit, several frames in
-   a row had at least two observations of which none could be used, or the slot IDs read
+   a row had at least two observations of which none could be used (painted lines seen
+   where the map holds no line within their range are paint the map does not hold, not
+   counted), or the slot IDs read
    confidently on the associated slots contradict the map's (at least
    ``label_contradiction`` of the last ``label_check_window``: a wrong map, or a pose
    the geometry alone keeps on the wrong slots; misreads are far rarer); ``relocalized`` on
@@ -182,7 +184,8 @@ class Localizer:
             else:
                 rejected += assoc.count
         update_ms = (time.perf_counter() - started) * 1e3
-        considered = assoc.count + assoc.rejected_total  # one odd observation is no failure
+        # one odd observation is no failure, nor paint seen where the map holds none
+        considered = assoc.count + assoc.rejected_total - assoc.unmapped
         self._failures = 0 if applied or considered < 2 else self._failures + 1
         self._check_labels(frame, assoc)
         sigma = math.sqrt(max(np.linalg.eigvalsh(self.filter.P[:2, :2])))

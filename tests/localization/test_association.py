@@ -11,7 +11,14 @@ from semslam.config import LocalizationConfig
 from semslam.geometry import rotation
 from semslam.localization.association import LocalMap
 from semslam.localization.measurements import PointMeasurement, point_jacobian
-from semslam.types import FrameObservations, SemanticMap, Slot, SlotObservation
+from semslam.types import (
+    FrameObservations,
+    Marking,
+    MarkingObservation,
+    SemanticMap,
+    Slot,
+    SlotObservation,
+)
 
 CFG = LocalizationConfig()
 SIGMA = 0.05  # corner sigma the observations declare (above the configured floor)
@@ -125,3 +132,21 @@ def test_a_map_tags_covariance_enters_the_measurement_noise_through_the_measurem
                    - TagMeasurement(np.zeros(3), np.eye(3), mTt - e).predict(pose)[0]) / 2e-6
     expected = obs.covariance + CFG.map_covariance_scale * J @ C_map @ J.T
     np.testing.assert_allclose(out.measurements[0].R, expected, atol=1e-10)
+
+
+def test_rejected_lines_are_unmapped_paint_only_where_the_map_holds_no_line_in_view():
+    line = Marking(np.array([0.0, 0.0]), np.array([10.0, 0.0]), 0.15)
+    local = LocalMap(SemanticMap(markings=(line,)), CFG)
+    P = np.diag([0.01, 0.01, 1e-4])
+
+    def seen(y: float) -> MarkingObservation:  # 4 m of paint along the car, y m to its left
+        return MarkingObservation(np.array([-2.0, y]), np.array([2.0, y]), 0.15, 0.9, 0.02)
+
+    beside = np.array([5.0, -2.0, 0.0])  # the map line 2 m to the left
+    out = local.associate(FrameObservations(0.0, markings=(seen(2.0),)), beside, P)
+    assert out.count == 1 and out.unmapped == 0  # the map line itself
+    out = local.associate(FrameObservations(0.0, markings=(seen(2.8), seen(-3.0))), beside, P)
+    assert out.rejected["marking"] == 2 and out.unmapped == 0  # the map's line in view: misfits
+    away = np.array([5.0, -20.0, 0.0])  # the map line 20 m off, beyond what the car sees
+    out = local.associate(FrameObservations(0.0, markings=(seen(2.8), seen(-3.0))), away, P)
+    assert out.rejected["marking"] == 2 and out.unmapped == 2  # paint the map does not hold

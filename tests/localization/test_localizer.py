@@ -101,6 +101,43 @@ def test_markings_alone_keep_it_on_track(sim):
     assert np.sqrt(np.mean(pos**2)) < 0.2
 
 
+def _lines_only(frames, turn=0.0):
+    """The frames with their slots and tags taken away and each painted line turned by
+    ``turn`` (rad) about its middle."""
+    c, s = math.cos(turn), math.sin(turn)
+
+    def changed(m):
+        a, b = np.asarray(m.vA, float), np.asarray(m.vB, float)
+        mid = (a + b) / 2
+        R = np.array([[c, -s], [s, c]])
+        return dataclasses.replace(m, vA=mid + R @ (a - mid), vB=mid + R @ (b - mid))
+
+    return [dataclasses.replace(f, slots=(), tags=(), markings=tuple(map(changed, f.markings)))
+            for f in frames]
+
+
+def test_lines_that_fit_no_map_line_in_view_are_lost_lines_where_the_map_has_none_are_not(sim):
+    frames = sim.noisy[:60]
+    assert sum(len(f.markings) >= 2 for f in frames) >= 20
+    _, askew = _run(sim, frames=_lines_only(frames, turn=math.radians(30)))
+    assert "lost" in {e.status for e in askew}  # on the map's lines, but 30 deg off them
+    _, straight = _run(sim, frames=_lines_only(frames))
+    assert "lost" not in {e.status for e in straight}
+    # the same lines against a map that lost its lines near the first 60 frames: coasting
+    near = sim.frame_poses[:60, :2]
+    world = sim.world.to_map()
+    far_lines = tuple(m for m in world.markings if min(
+        np.hypot(*(near - (np.asarray(m.a) + np.asarray(m.b)) / 2).T).min(),
+        np.hypot(*(near - m.a).T).min(), np.hypot(*(near - m.b).T).min()) > 25.0)
+    assert 0 < len(far_lines) < len(world.markings)
+    rec = sim.record
+    loc = Localizer(dataclasses.replace(world, markings=far_lines), LocalizationConfig(),
+                    rec.t, rec.odo_speed, rec.odo_yaw_rate, sim.frame_poses[0])
+    unheld = [loc.step(f) for f in _lines_only(frames)]
+    assert {e.status for e in unheld} == {"coasting"}
+    assert sum(e.rejected for e in unheld) >= 40  # seen and refused, without alarm
+
+
 def test_time_going_backwards_is_refused(sim):
     loc, _ = _run(sim, frames=sim.noisy[:5])
     with pytest.raises(DriveError, match="time went back"):
