@@ -11,10 +11,10 @@ Per frame (observations in the vehicle frame, time ``t``):
    applied, ``lost`` when the position uncertainty exceeds its limit, several frames in
    a row had at least two observations of which none could be used (painted lines seen
    where the map holds no line within their range are paint the map does not hold, not
-   counted), or the slot IDs read
-   confidently on the associated slots contradict the map's (at least
-   ``label_contradiction`` of the last ``label_check_window``: a wrong map, or a pose
-   the geometry alone keeps on the wrong slots; misreads are far rarer); ``relocalized`` on
+   counted), or the slot IDs read confidently on the associated slots contradict the
+   map's (at least ``label_contradiction`` of the last ``label_check_window``: a wrong
+   map, or a pose the geometry alone keeps on the wrong slots; misreads are far rarer);
+   ``relocalized`` on
    the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
    several confidently read slot IDs that agree); the position covariance is floored at
    the associated map landmarks' own covariance and the heading variance at the
