@@ -235,13 +235,15 @@ def read_vector_map(folder: str | os.PathLike[str]) -> FloatArray:
         folder: the recording (holding ``vector_map/``) or ``vector_map/`` itself.
 
     Raises:
-        DriveError: point.csv or line.csv is missing.
+        DriveError: the folder, its vector map, point.csv or line.csv is missing.
         FormatError: a wrong header, column count or number, a coordinate beyond
             :data:`~semslam.io.map_json.MAX_COORDINATE`, a repeated ID, a line whose end
             point is not in point.csv, a line whose two end points coincide; the message
             names the file and line.
     """
     given = Path(folder)
+    if not given.is_dir():
+        raise DriveError(f"{os.fspath(given)}: vector map folder not found")
     root = given
     if not (root / POINT_CSV).is_file() and (root / VECTOR_MAP_DIR).is_dir():
         root = root / VECTOR_MAP_DIR

@@ -75,4 +75,4 @@ def test_bad_arguments_are_one_line_errors(tmp_path: Path) -> None:
         ["evaluate", "markings", str(map_path), "--vector-map", str(tmp_path / "nowhere"),
          "--trajectory", str(tmp_path / "drive.tum")],
     )
-    assert res.exit_code == 2 and "point.csv: missing" in res.output
+    assert res.exit_code == 2 and "nowhere: vector map folder not found" in res.output

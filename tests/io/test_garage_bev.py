@@ -225,6 +225,8 @@ def test_masks_are_read_in_frame_order_and_a_frame_with_two_masks_is_refused(
 def test_a_folder_with_no_vector_map_is_named(tmp_path: Path) -> None:
     with pytest.raises(DriveError, match=rf"{tmp_path}: no vector map there"):
         read_vector_map(tmp_path)
+    with pytest.raises(DriveError, match=r"nowhere: vector map folder not found"):
+        read_vector_map(tmp_path / "nowhere")
     with pytest.raises(DriveError, match=r"vector_map/line\.csv: missing"):
         _write_recording(tmp_path / "r")
         (tmp_path / "r" / "vector_map" / "line.csv").unlink()
