@@ -624,7 +624,8 @@ class PlanObjective(StrEnum):
 def accuracy(
     map_path: Annotated[Path, typer.Argument(metavar="MAP.json", help="The map.")],
     output: Annotated[str, typer.Option("-o", "--output", metavar="DIR",
-                                        help="Folder for accuracy.json and accuracy_map.png.")],
+                                        help="Folder for accuracy.json and accuracy_map.png "
+                                        "(and config.json with --grade localizer).")],
     route: Annotated[
         Path | None, typer.Option(metavar="TRAJ.tum", help="A route to predict along.")
     ] = None,
@@ -645,6 +646,9 @@ def accuracy(
 
     try:
         out = _output_folder(output)
+        _refuse_inputs([out / name for name in ("accuracy.json", "accuracy_map.png",
+                                                "config.json")],
+                       {"map": map_path, "route": route}, output)
         result = predicted_accuracy(map_path, out, route, grade.value, grid_step, threshold)
     except (SemslamError, OSError) as e:
         _fail(e)

@@ -637,3 +637,12 @@ def test_an_unsolvable_graph_names_the_drive_and_the_settings(small_drive, tmp_p
     _fails(_run("map", small_drive, "-o", out, "--config", config, "--no-progress"),
            str(small_drive), "could not be solved", "mapping sigma", "dump-config")
     assert not out.exists()
+
+
+def test_accuracy_refuses_to_write_over_the_map_it_reads(tmp_path):
+    the_map = tmp_path / "config.json"  # where --grade localizer writes its settings
+    save_map(the_map, SemanticMap())
+    before = the_map.read_text()
+    _fails(_run("accuracy", the_map, "-o", tmp_path, "--grade", "localizer"),
+           "would replace", "the map it reads")
+    assert the_map.read_text() == before

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
+from semslam.evaluation.segments import nearest_segments
 from semslam.geometry import FloatArray, rotate_pose_covariance
 from semslam.localization.filter import solve_spd
 from semslam.localization.measurements import (
@@ -302,8 +303,8 @@ class LocalMap:
         # hold: no evidence against the pose, as lines that fit none of the map's lines in
         # view are (counted at the end, when the rejections are known)
         seen_to = float(np.hypot(*vE.reshape(-1, 2).T).max())
-        unheld = bool(_farther_than(pose[None, :2], self.marking_a[local],
-                                    self.marking_b[local], seen_to)[0])
+        unheld = not len(local) or nearest_segments(
+            pose[None, :2], self.marking_a[local], self.marking_b[local])[0][0] > seen_to
         rejected_before = out.rejected["marking"]
         self._match_markings(out, pose, P, vE, mE, sigma, length, local, s, c)
         if unheld:
@@ -388,16 +389,6 @@ class LocalMap:
                 reach=cfg.marking_clamp_reach,
             )
         self._accept(out, "marking", m, observations=len(good))
-
-
-def _farther_than(points: FloatArray, a: FloatArray, b: FloatArray, distance: float) -> np.ndarray:
-    """Per point (N, 2): is every segment ``a -> b`` (M, 2) farther than ``distance`` (m)?"""
-    ab = b - a
-    t = np.einsum("nmk,mk->nm", points[:, None] - a, ab) / np.maximum(
-        np.einsum("mk,mk->m", ab, ab), 1e-12)
-    nearest = a + np.clip(t, 0.0, 1.0)[..., None] * ab  # (N, M, 2)
-    gap = points[:, None] - nearest
-    return ~(np.einsum("nmk,nmk->nm", gap, gap) < distance**2).any(axis=1)
 
 
 def _d2(m, pose: FloatArray, P: FloatArray) -> float:

@@ -175,7 +175,7 @@ def predicted_accuracy(
         atomic_write_bytes(out / "accuracy_map.png", picture)
         atomic_write_text(out / "accuracy.json",
                           json.dumps(result, indent=2, allow_nan=False) + "\n")
-        if grade == "localizer" and cfg is not None:
+        if grade == "localizer":  # the settings it was predicted for (loaded above)
             from semslam.config import config_to_json
 
             atomic_write_text(out / "config.json", config_to_json(cfg))
