@@ -195,11 +195,13 @@ class Field:
 
 
 def int_text(v: int) -> str:
-    """An integer for a one-line message: its digits when short, else rounded."""
+    """An integer for a one-line message: its digits when short, else to six figures."""
     if abs(v) < 10**12:
         return str(v)
-    digits = len(str(abs(v)))
-    return f"{'-' if v < 0 else ''}{str(abs(v))[0]}e+{digits - 1} (rounded)"
+    try:
+        return f"{float(v):.6g}"
+    except OverflowError:  # beyond any float
+        return f"an integer of {len(str(abs(v)))} digits"
 
 
 def check_within(f: Field, values: Any, within: float) -> None:
