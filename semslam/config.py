@@ -353,6 +353,12 @@ class LocalizationConfig(_Section):
         1.0, ge=0, description="the position covariance never drops below this times the "
         "associated map corners' covariance (0: off)",
     )
+    map_heading_radius: float = Field(
+        5.0, ge=0, description="m: the reported heading variance is at least map_floor_scale "
+        "times the mean orientation variance of the map's slots this near the car, the map's "
+        "own heading error there, which frames updated by painted lines alone do not hold "
+        "(reported only: the filter's covariance is not changed; 0: off; BENCHMARKS.md)",
+    )
     id_confidence_high: float = Field(
         0.8, ge=0, le=1, description="label confidence from which a slot is looked up by ID"
     )

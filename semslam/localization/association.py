@@ -137,6 +137,15 @@ class LocalMap:
         self._marking_gates = {n: chi2_quantile(cfg.marking_gate, n) for n in range(1, 5)}
 
     # ------------------------------------------------------------------ frame
+    def heading_variance_near(self, xy: FloatArray, radius: float) -> float | None:
+        """The mean orientation variance (rad^2) of the map slots whose centre lies within
+        ``radius`` m of ``xy`` (map frame, m): the map's own heading error there; None when
+        no slot is that near."""
+        if self._slot_tree is None or radius <= 0:
+            return None
+        near = self._slot_tree.query_ball_point(np.asarray(xy, dtype=float)[:2], radius)
+        return float(self.heading_var[near].mean()) if near else None
+
     def associate(self, frame: FrameObservations, pose: FloatArray, P: FloatArray) -> Associations:
         """Associate the observations of ``frame`` at the predicted ``pose`` (3,) with pose
         covariance ``P`` (3, 3)."""

@@ -18,7 +18,9 @@ Per frame (observations in the vehicle frame, time ``t``):
    the frame the pose came from global relocalization (:mod:`.relocalize`: tags, or
    several confidently read slot IDs that agree); the position covariance is floored at
    the associated map landmarks' own covariance and the heading variance at the
-   associated slots' orientation variance (map errors do not average out);
+   associated slots' orientation variance (map errors do not average out); the heading
+   variance reported is at least the orientation variance of the map's slots near the car
+   (painted lines carry no covariance, so frames updated by lines alone would not hold it);
 5. recovery: while lost, and every ``check_every`` frames while tracking, the last
    seconds of frames (:mod:`.recent`) are relocalized globally; a global pose that
    contradicts the filter (outside the gate) twice in a row, or any global pose while
@@ -331,9 +333,26 @@ class Localizer:
         if not self.initialized:
             pose, cov = np.full(3, np.nan), np.full((3, 3), np.nan)
         else:
-            pose, cov = self.filter.pose, self.filter.pose_covariance
+            pose, cov = self.filter.pose, self._reported_covariance()
         return FrameEstimate(float(self.t), pose, cov, status, associated, rejected, update_ms)
 
+    def _reported_covariance(self) -> FloatArray:
+        """The filter's pose covariance with its heading variance raised to the map's own
+        heading error where the car is (``map_floor_scale`` times the mean orientation
+        variance of the map's slots within ``map_heading_radius``). The filter measures its
+        heading against the map; a frame updated with slots is floored at their heading error
+        inside the filter (:meth:`_floor_to_map`), but painted lines carry no covariance of
+        their own, and a filter that follows lines alone grows surer of its heading than the
+        map is. Only the report is raised: a heading floor inside the filter lets each next
+        line turn it (BENCHMARKS.md, "The markings-only filter is too sure of itself")."""
+        cov = self.filter.pose_covariance
+        k, radius = self.cfg.map_floor_scale, self.cfg.map_heading_radius
+        if k <= 0 or radius <= 0:
+            return cov
+        heading = self.local_map.heading_variance_near(self.filter.pose, radius)
+        if heading is not None and cov[2, 2] < k * heading:
+            cov[2, 2] = k * heading  # pose_covariance is a copy
+        return cov
 
 def positive_part_2x2(A: FloatArray) -> FloatArray:
     """The positive semi-definite part of a symmetric 2x2 matrix (its negative eigenvalue,

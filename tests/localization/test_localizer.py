@@ -215,6 +215,35 @@ def test_the_heading_is_never_surer_than_the_slots_it_was_measured_against(sim):
             assert np.median(yaw_sigma) < heading_sigma / 3
 
 
+def test_the_reported_heading_holds_the_maps_heading_error_where_lines_alone_update(sim):
+    """With slots and tags switched off the filter follows painted lines, which carry no
+    covariance: the reported heading variance is raised to the orientation variance of the
+    map's slots near the car, and only the report is: the poses are the same to the bit."""
+    world = sim.world.to_map()
+    heading_sigma = math.radians(0.3)
+    unsure = dataclasses.replace(world, slots=tuple(
+        dataclasses.replace(s, heading_variance=heading_sigma**2) for s in world.slots))
+    rec = sim.record
+    runs = {}
+    for radius in (0.0, 5.0):
+        cfg = LocalizationConfig(use_slots=False, use_tags=False, map_heading_radius=radius)
+        loc = Localizer(unsure, cfg, rec.t, rec.odo_speed, rec.odo_yaw_rate, sim.frame_poses[0])
+        runs[radius] = [loc.step(f) for f in sim.noisy]
+    near = np.array([loc.local_map.heading_variance_near(e.pose, 5.0) is not None
+                     for e in runs[5.0]])
+    assert 0.2 < near.mean() < 1.0  # some frames have a map slot within 5 m, some not
+    for off, on, has_slot in zip(runs[0.0], runs[5.0], near, strict=True):
+        np.testing.assert_array_equal(off.pose, on.pose)
+        if has_slot:
+            assert on.covariance[2, 2] == pytest.approx(max(off.covariance[2, 2],
+                                                            heading_sigma**2))
+        else:
+            np.testing.assert_array_equal(on.covariance, off.covariance)
+    raised = [on.covariance[2, 2] > off.covariance[2, 2]
+              for off, on in zip(runs[0.0], runs[5.0], strict=True)]
+    assert np.mean(raised) > 0.2  # lines alone make the filter surer than the map
+
+
 def test_positive_part_2x2_matches_the_eigendecomposition():
     rng = np.random.default_rng(3)
     for _ in range(200):
