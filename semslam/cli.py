@@ -508,6 +508,8 @@ _TRAJECTORY_TABLE = (
     "parallel_mean_m",
     "orthogonal_mean_m",
     "nees_mean",
+    "nees_position_mean",
+    "nees_heading_mean",
     "nees_within_95",
 )
 

@@ -228,7 +228,10 @@ def evaluate_trajectory(
         - ``nees_mean``: mean of ``e^T P^-1 e`` over evaluated frames whose
           covariance is positive definite (``nees_frames`` of them);
           ``nees_within_95``: the fraction below the chi-square(3) 95%
-          quantile (7.81; 0.95 when consistent). None without covariances.
+          quantile (7.81; 0.95 when consistent); ``nees_position_mean`` and
+          ``nees_heading_mean``: the same of the position alone (its 2 x 2 block;
+          2 when consistent) and the heading alone (1), to tell which part of the
+          covariance is too small or too large. None without covariances.
 
     Raises:
         ValueError: shapes disagree, times are not strictly increasing, a
@@ -351,16 +354,24 @@ def _split(exy: FloatArray, G: FloatArray, markings: ArrayLike | None) -> dict[s
 
 def _nees(e: FloatArray, covs: FloatArray | None) -> dict[str, Any]:
     """Normalised estimation error squared against positive definite covariances."""
+    keys = ("nees_mean", "nees_within_95", "nees_frames", "nees_position_mean",
+            "nees_heading_mean")
     if covs is None:
-        return {"nees_mean": None, "nees_within_95": None, "nees_frames": None}
+        return dict.fromkeys(keys)
     sym = 0.5 * (covs + np.swapaxes(covs, 1, 2))
     finite = np.all(np.isfinite(sym), axis=(1, 2))
     pd = np.zeros(len(sym), dtype=bool)
     if finite.any():
         pd[finite] = np.linalg.eigvalsh(sym[finite]).min(axis=1) > 0
-    nees = np.einsum("ni,ni->n", e[pd], np.linalg.solve(sym[pd], e[pd][..., None])[..., 0])
-    return {
-        "nees_mean": _mean(nees),
-        "nees_within_95": float(np.mean(nees < CHI2_3DOF_95)) if nees.size else None,
-        "nees_frames": int(pd.sum()),
-    }
+    e, sym = e[pd], sym[pd]
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(sym, e[..., None])[..., 0])
+    position = np.einsum("ni,ni->n", e[:, :2], np.linalg.solve(sym[:, :2, :2],
+                                                               e[:, :2, None])[..., 0])
+    heading = e[:, 2] ** 2 / sym[:, 2, 2]
+    return dict(zip(keys, (
+        _mean(nees),
+        float(np.mean(nees < CHI2_3DOF_95)) if nees.size else None,
+        int(pd.sum()),
+        _mean(position),
+        _mean(heading),
+    ), strict=True))

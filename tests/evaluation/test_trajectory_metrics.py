@@ -155,6 +155,14 @@ def test_nees_of_errors_drawn_from_the_stated_covariance_is_about_3():
     assert result["nees_within_95"] == pytest.approx(0.95, abs=0.015)  # sd 0.0034
     overconfident = evaluate_trajectory(t, est, t, truth, covariances=covs / 4)
     assert overconfident["nees_mean"] == pytest.approx(4 * result["nees_mean"])
+    assert result["nees_position_mean"] == pytest.approx(2.0, abs=0.12)
+    assert result["nees_heading_mean"] == pytest.approx(1.0, abs=0.08)  # sd 0.022
+    surer_heading = covs.copy()
+    surer_heading[:, 2, :] /= 2  # the heading's sigma halved, its correlations with it
+    surer_heading[:, :, 2] /= 2
+    turned = evaluate_trajectory(t, est, t, truth, covariances=surer_heading)
+    assert turned["nees_heading_mean"] == pytest.approx(4 * result["nees_heading_mean"])
+    assert turned["nees_position_mean"] == pytest.approx(result["nees_position_mean"])
 
 
 def test_chi2_constant():
