@@ -354,6 +354,7 @@ class Localizer:
             cov[2, 2] = k * heading  # pose_covariance is a copy
         return cov
 
+
 def positive_part_2x2(A: FloatArray) -> FloatArray:
     """The positive semi-definite part of a symmetric 2x2 matrix (its negative eigenvalue,
     if any, set to 0), in closed form."""
