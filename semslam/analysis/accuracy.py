@@ -254,7 +254,10 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     floor, map covariance scale, tag range limit, line end points at
     ``hypot(marking_endpoint_sigma, marking_map_sigma)`` and only as a fallback when
     ``markings_as_fallback``, the covariance floor at the map's uncertainty. Switched-off
-    kinds (``use_slots`` ...) are not modelled."""
+    kinds (``use_slots`` ...) are not modelled, nor the heading the localizer reports raised
+    to the map's slots' near the car (``map_heading_radius``): the prediction is the filter's
+    own covariance, which differs from the report in the heading alone, in frames that see
+    lines but no slot within reach of one."""
     return LocalizerModel(
         corner_sigma_min=cfg.slot_corner_sigma_min,
         map_covariance_scale=cfg.map_covariance_scale,
