@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from scipy.stats import chi2
 
 from semslam.config import LocalizationConfig
@@ -150,3 +151,19 @@ def test_rejected_lines_are_unmapped_paint_only_where_the_map_holds_no_line_in_v
     away = np.array([5.0, -20.0, 0.0])  # the map line 20 m off, beyond what the car sees
     out = local.associate(FrameObservations(0.0, markings=(seen(2.8), seen(-3.0))), away, P)
     assert out.rejected["marking"] == 2 and out.unmapped == 2  # paint the map does not hold
+
+
+def test_the_maps_heading_error_near_a_point_is_the_mean_over_the_slots_within_reach():
+    # slot centres at (1.25, 2.5) and (11.25, 2.5), orientation variances 1e-6 and 4e-6;
+    # (6.25, 2.5) lies 5 m from both
+    slots = tuple(
+        Slot(i, None, 0.0, RECTANGLE + (10.0 * i, 0.0), np.zeros((4, 2, 2)), "perpendicular",
+             5, heading_variance=v)
+        for i, v in enumerate((1e-6, 4e-6))
+    )
+    local = LocalMap(SemanticMap(slots=slots), CFG)
+    assert local.heading_variance_near(np.array([1.25, 2.5, 0.3]), 5.0) == 1e-6
+    assert local.heading_variance_near(np.array([6.25, 2.5]), 5.0) == pytest.approx(2.5e-6)
+    assert local.heading_variance_near(np.array([6.25, 9.0]), 5.0) is None
+    assert local.heading_variance_near(np.array([1.25, 2.5]), 0.0) is None
+    assert LocalMap(SemanticMap(), CFG).heading_variance_near(np.zeros(2), 5.0) is None
