@@ -400,6 +400,11 @@ class LocalizationConfig(_Section):
     markings_as_fallback: bool = Field(
         True, description="use markings only in frames with few slot / tag associations"
     )
+    slot_sides_as_markings: bool = Field(
+        True, description="the map's slots' sides (their painted separators) join its painted "
+        "lines where it holds none there (BENCHMARKS.md: a row mapped from afar has its slots "
+        "but not their separators)"
+    )
     fallback_below: int = Field(
         2, ge=1, description="markings are used when fewer slots + tags than this associate"
     )

@@ -2,8 +2,10 @@
 
 The map is indexed once: a KD-tree over slot centres, a table from painted label to slots,
 a table from (family, ID) to tags, and a KD-tree over points sampled every metre along the
-line markings. For a predicted pose (with its 3x3 covariance) each observation is tried
-against the landmarks near where it would lie in the map; its squared Mahalanobis distance
+line markings (the map's own and, with ``slot_sides_as_markings``, its slots' separators
+where it holds no line: :mod:`.slot_sides`). For a predicted pose (with its 3x3
+covariance) each observation is tried against the landmarks near where it would lie in the
+map; its squared Mahalanobis distance
 ``d2 = r^T (H P H^T + R)^-1 r`` decides:
 
 - tags: by ID (trusted), within the range limit and the tag gate;
@@ -38,6 +40,7 @@ from semslam.localization.measurements import (
     PointMeasurement,
     TagMeasurement,
 )
+from semslam.localization.slot_sides import slot_sides
 from semslam.types import FrameObservations, SemanticMap
 
 _MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-tree
@@ -114,6 +117,8 @@ class LocalMap:
             )
         self.tags = {(t.family, t.tag_id): t for t in semantic_map.tags}
         self.markings = semantic_map.markings
+        if cfg.slot_sides_as_markings:  # separators the slots imply, where no line is mapped
+            self.markings = self.markings + slot_sides(semantic_map)
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
         samples, owners = [], []

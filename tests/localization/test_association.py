@@ -167,3 +167,17 @@ def test_the_maps_heading_error_near_a_point_is_the_mean_over_the_slots_within_r
     assert local.heading_variance_near(np.array([6.25, 9.0]), 5.0) is None
     assert local.heading_variance_near(np.array([1.25, 2.5]), 0.0) is None
     assert LocalMap(SemanticMap(), CFG).heading_variance_near(np.zeros(2), 5.0) is None
+
+
+def test_a_separator_the_map_holds_only_through_its_slots_is_associated_with_their_side():
+    slots = tuple(_slot(i, (2.5 * i, 0.0)) for i in range(3))  # separators at x = 0 .. 7.5
+    pose = np.array([3.75, -3.0, math.pi / 2])  # in the aisle, facing the row (+y)
+    P = np.diag([0.01, 0.01, 1e-4])
+    # the x = 2.5 separator from 3.5 to 7.5 m ahead, 1.25 m to the car's left
+    frame = FrameObservations(0.0, markings=(
+        MarkingObservation(np.array([3.5, 1.25]), np.array([7.5, 1.25]), 0.1, 0.9, 0.02),))
+    cfg = CFG.model_copy(update={"use_slots": False, "use_tags": False})
+    with_sides = LocalMap(SemanticMap(slots=slots), cfg).associate(frame, pose, P)
+    assert with_sides.count == 1 and with_sides.kinds == ["marking"]
+    off = cfg.model_copy(update={"slot_sides_as_markings": False})
+    assert LocalMap(SemanticMap(slots=slots), off).associate(frame, pose, P).count == 0

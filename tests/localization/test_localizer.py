@@ -131,11 +131,17 @@ def test_lines_that_fit_no_map_line_in_view_are_lost_lines_where_the_map_has_non
         np.hypot(*(near - m.a).T).min(), np.hypot(*(near - m.b).T).min()) > 25.0)
     assert 0 < len(far_lines) < len(world.markings)
     rec = sim.record
-    loc = Localizer(dataclasses.replace(world, markings=far_lines), LocalizationConfig(),
-                    rec.t, rec.odo_speed, rec.odo_yaw_rate, sim.frame_poses[0])
+    lines_lost = dataclasses.replace(world, markings=far_lines)
+    cfg = LocalizationConfig(slot_sides_as_markings=False)  # the map's lines alone
+    loc = Localizer(lines_lost, cfg, rec.t, rec.odo_speed, rec.odo_yaw_rate, sim.frame_poses[0])
     unheld = [loc.step(f) for f in _lines_only(frames)]
     assert {e.status for e in unheld} == {"coasting"}
     assert sum(e.rejected for e in unheld) >= 40  # seen and refused, without alarm
+    # the map's slots still hold the separators among those lines: they are used
+    loc = Localizer(lines_lost, LocalizationConfig(), rec.t, rec.odo_speed, rec.odo_yaw_rate,
+                    sim.frame_poses[0])
+    sides = [loc.step(f) for f in _lines_only(frames)]
+    assert np.mean([e.status == "tracking" for e in sides]) > 0.8
 
 
 def test_time_going_backwards_is_refused(sim):
