@@ -257,7 +257,9 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     kinds (``use_slots`` ...) are not modelled, nor the heading the localizer reports raised
     to the map's slots' near the car (``map_heading_radius``): the prediction is the filter's
     own covariance, which differs from the report in the heading alone, in frames that see
-    lines but no slot within reach of one."""
+    lines but no slot within reach of one. The painted lines are the map's own: the slots'
+    separators the localizer adds where the map holds none (``slot_sides_as_markings``) are
+    not, so where they would be the prediction is the more cautious."""
     return LocalizerModel(
         corner_sigma_min=cfg.slot_corner_sigma_min,
         map_covariance_scale=cfg.map_covariance_scale,
