@@ -28,6 +28,7 @@ from semslam.types import Marking, SemanticMap
 SAME_LINE_M = 0.3  # m: a map line or another side this near is the same painted line
 PARALLEL_DEG = 10.0  # deg: a map line turned less than this from a side may be the same line
 SIDE_WIDTH = 0.1  # m: nominal width given to a side (the localizer reads end points only)
+_SAMPLE_M = 1.0  # m between points sampled along the map's lines to find those near a side
 
 
 def slot_sides(semantic_map: SemanticMap) -> tuple[Marking, ...]:
@@ -44,14 +45,20 @@ def slot_sides(semantic_map: SemanticMap) -> tuple[Marking, ...]:
     if lines:
         a = np.array([m.a for m in lines], dtype=float)
         b = np.array([m.b for m in lines], dtype=float)
-        u = (b - a) / np.maximum(np.hypot(*(b - a).T), 1e-9)[:, None]
-        # a map line near a side passes within its half length (+ margin) of its middle
-        reach = 0.5 * np.hypot(*(b - a).T) + SAME_LINE_M
-        tree = cKDTree(0.5 * (a + b))
-        near_lines = tree.query_ball_point(middles, 0.5 * length + reach.max())
+        line_length = np.hypot(*(b - a).T)
+        u = (b - a) / np.maximum(line_length, 1e-9)[:, None]
+        # points every _SAMPLE_M along each line: a line within SAME_LINE_M of a side has one
+        # within SAME_LINE_M + _SAMPLE_M / 2 of it, so within that of the side's middle
+        # plus half the side's length
+        count = np.maximum(2, np.ceil(line_length / _SAMPLE_M).astype(int) + 1)
+        owner = np.repeat(np.arange(len(lines)), count)
+        t = np.concatenate([np.linspace(0.0, 1.0, n) for n in count])
+        samples = a[owner] + t[:, None] * (b - a)[owner]
+        found = cKDTree(samples).query_ball_point(
+            middles, 0.5 * length + SAME_LINE_M + 0.5 * _SAMPLE_M)
         cos_parallel = math.cos(math.radians(PARALLEL_DEG))
         for i in np.flatnonzero(keep):
-            near = np.array(near_lines[i], dtype=int)
+            near = np.unique(owner[np.array(found[i], dtype=int)])
             if not len(near):
                 continue
             v = (sides[i, 1] - sides[i, 0]) / length[i]
