@@ -83,4 +83,17 @@ def nearest_segments(
     return d[first], sj[first].astype(np.intp)
 
 
-__all__ = ["nearest_segments"]
+def sample_segments(a: ArrayLike, b: ArrayLike, step: float) -> tuple[FloatArray, NDArray[np.intp]]:
+    """Points along each segment ``a[k]``-``b[k]`` (S, 2), metres, both ends included and at
+    most ``step`` m apart (at least two per segment), and the segment of each point: (N, 2)
+    and (N,), segment by segment in order. A KD-tree over them finds the segments near a
+    place without a test against every segment."""
+    a = np.asarray(a, dtype=float).reshape(-1, 2)
+    b = np.asarray(b, dtype=float).reshape(-1, 2)
+    count = np.maximum(2, np.ceil(np.hypot(*(b - a).T) / step).astype(int) + 1)
+    owner = np.repeat(np.arange(len(a)), count)
+    t = np.concatenate([np.linspace(0.0, 1.0, n) for n in count]) if len(a) else np.zeros(0)
+    return a[owner] + t[:, None] * (b - a)[owner], owner
+
+
+__all__ = ["nearest_segments", "sample_segments"]

@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
-from semslam.evaluation.segments import nearest_segments
+from semslam.evaluation.segments import nearest_segments, sample_segments
 from semslam.geometry import FloatArray, rotate_pose_covariance
 from semslam.localization.filter import solve_spd
 from semslam.localization.measurements import (
@@ -121,13 +121,9 @@ class LocalMap:
             self.markings = self.markings + slot_sides(semantic_map)
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
-        samples, owners = [], []
-        for i, (a, b) in enumerate(zip(self.marking_a, self.marking_b, strict=True)):
-            n = max(2, int(math.ceil(np.linalg.norm(b - a) / _MARKING_SAMPLE)) + 1)
-            samples.append(a + np.linspace(0, 1, n)[:, None] * (b - a))
-            owners.extend([i] * n)
-        self._marking_tree = cKDTree(np.vstack(samples)) if samples else None
-        self._marking_owner = np.array(owners, dtype=int)
+        samples, self._marking_owner = sample_segments(
+            self.marking_a, self.marking_b, _MARKING_SAMPLE)
+        self._marking_tree = cKDTree(samples) if len(samples) else None
         self._marking_len = np.hypot(*(self.marking_b - self.marking_a).T)
         self._marking_u = (self.marking_b - self.marking_a) / np.maximum(
             self._marking_len, 1e-9

@@ -22,7 +22,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from semslam.evaluation.segments import nearest_segments
+from semslam.evaluation.segments import nearest_segments, sample_segments
 from semslam.types import Marking, SemanticMap
 
 SAME_LINE_M = 0.3  # m: a map line or another side this near is the same painted line
@@ -45,15 +45,11 @@ def slot_sides(semantic_map: SemanticMap) -> tuple[Marking, ...]:
     if lines:
         a = np.array([m.a for m in lines], dtype=float)
         b = np.array([m.b for m in lines], dtype=float)
-        line_length = np.hypot(*(b - a).T)
-        u = (b - a) / np.maximum(line_length, 1e-9)[:, None]
+        u = (b - a) / np.maximum(np.hypot(*(b - a).T), 1e-9)[:, None]
         # points every _SAMPLE_M along each line: a line within SAME_LINE_M of a side has one
         # within SAME_LINE_M + _SAMPLE_M / 2 of it, so within that of the side's middle
         # plus half the side's length
-        count = np.maximum(2, np.ceil(line_length / _SAMPLE_M).astype(int) + 1)
-        owner = np.repeat(np.arange(len(lines)), count)
-        t = np.concatenate([np.linspace(0.0, 1.0, n) for n in count])
-        samples = a[owner] + t[:, None] * (b - a)[owner]
+        samples, owner = sample_segments(a, b, _SAMPLE_M)
         found = cKDTree(samples).query_ball_point(
             middles, 0.5 * length + SAME_LINE_M + 0.5 * _SAMPLE_M)
         cos_parallel = math.cos(math.radians(PARALLEL_DEG))
