@@ -193,10 +193,11 @@ def nees_run(root: Path, seed: int) -> dict:
     infos, _ = route_information(geometry, truth)  # Hofmann: SensorModel(), ideal filter
     predictions = {g.name: filter_route(infos, truth, truth_t, g)[:, :2, :2]
                    for g in (simulator_grade(), GRADES["automotive"])}
+    model = localizer_model(cfg.localization)
     along = predicted_along_route(
-        geometry, truth, truth_t, localizer_grade(cfg.localization,
-                                                  cfg.simulation.drive.odometry_rate),
-        simulated_sensors(cfg.simulation.observation_noise), localizer_model(cfg.localization))
+        MapGeometry.for_model(load_map(drive / "world.json"), model), truth, truth_t,
+        localizer_grade(cfg.localization, cfg.simulation.drive.odometry_rate),
+        simulated_sensors(cfg.simulation.observation_noise), model)
     predictions["localizer"] = along["covariance"][:, :2, :2]
     predictions["filter_own"] = own
     row = {"seed": seed, "frames": len(truth_t), "route_m": round(float(

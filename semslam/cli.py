@@ -638,20 +638,34 @@ def accuracy(
     grid_step: Annotated[float, typer.Option(help="Grid spacing, m.")] = 1.0,
     threshold: Annotated[float, typer.Option(help="Accuracy target, m (worst stretches).")] = 0.2,
     json_output: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    config: Annotated[
+        Path | None,
+        typer.Option("--config", help="JSON file overriding defaults (see `semslam "
+                     "dump-config`): the localizer predicted by --grade localizer."),
+    ] = None,
 ) -> None:
     """Predicted accuracy from the map alone (Hofmann), on a grid and along a route.
 
     Single-frame (A^T P A)^-1 on a grid and, along a route, filtered with an odometry
     grade or as semslam's localizer would; the worst stretches."""
+    from semslam.config import load_config
     from semslam.pipeline.accuracy import predicted_accuracy
     from semslam.reporting import print_metrics
 
     try:
+        if config is not None and grade != Grade.localizer:
+            raise SemslamError(f"--config {config}: only --grade localizer reads a "
+                               "configuration")
         out = _output_folder(output)
-        _refuse_inputs([out / name for name in ("accuracy.json", "accuracy_map.png",
-                                                "config.json")],
-                       {"map": map_path, "route": route}, output)
-        result = predicted_accuracy(map_path, out, route, grade.value, grid_step, threshold)
+        written = [out / name for name in ("accuracy.json", "accuracy_map.png")]
+        _refuse_inputs([*written, out / "config.json"], {"map": map_path, "route": route},
+                       output)
+        # DIR/config.json is the config in force, written back: a re-run with it replaces
+        # it by the same
+        _refuse_inputs(written, {"--config file": config}, output)
+        cfg = load_config(config) if grade == Grade.localizer else None
+        result = predicted_accuracy(map_path, out, route, grade.value, grid_step, threshold,
+                                    cfg)
     except (SemslamError, OSError) as e:
         _fail(e)
     if json_output:

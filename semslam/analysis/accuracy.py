@@ -20,9 +20,10 @@ allows at best.
 How the filter uses it (:class:`LocalizerModel`): by default Hofmann's ideal filter,
 every landmark in every frame at its sensor noise. :func:`localizer_model` and
 :func:`localizer_grade` describe semslam's own localizer instead (its ``localization``
-configuration): its corner sigma floor, inflated map covariance, painted lines only as a
-fallback where fewer than ``fallback_below`` slots + tags are detected, its covariance
-floor at the map's uncertainty, and its process noise (odometry as 50 Hz measurements
+configuration): the kinds it uses, its corner sigma floor, inflated map covariance,
+painted lines (its slots' separators among them) only as a fallback where fewer than
+``fallback_below`` slots + tags are detected, its covariance floor at the map's
+uncertainty, and its process noise (odometry as 50 Hz measurements
 plus position and heading walks). Pure numpy.
 """
 
@@ -39,6 +40,7 @@ from scipy.spatial import cKDTree
 from semslam.errors import ConfigError
 from semslam.geometry import FloatArray, clip_segments, rotation, segment_pieces
 from semslam.localization.measurements import point_jacobian
+from semslam.localization.slot_sides import slot_sides
 from semslam.types import SemanticMap
 
 if TYPE_CHECKING:
@@ -232,6 +234,10 @@ class LocalizerModel:
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
         marking_map_sigma: assumed uncertainty of a map line (maps store none), m.
+        use_slots, use_tags, use_markings: a kind switched off is never used.
+        slot_sides: the slots' separators join the map's painted lines where it holds none
+            (:func:`~semslam.localization.slot_sides.slot_sides`); read by
+            :meth:`MapGeometry.for_model`.
     """
 
     corner_sigma_min: float = 0.0
@@ -242,6 +248,10 @@ class LocalizerModel:
     fallback_below: int = 0
     map_floor_scale: float = 0.0
     marking_map_sigma: float = 0.0
+    use_slots: bool = True
+    use_tags: bool = True
+    use_markings: bool = True
+    slot_sides: bool = False
 
 
 IDEAL = LocalizerModel()
@@ -253,13 +263,13 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     :mod:`semslam.localization.association` and ``Localizer._floor_to_map``): corner sigma
     floor, map covariance scale, tag range limit, line end points at
     ``hypot(marking_endpoint_sigma, marking_map_sigma)`` and only as a fallback when
-    ``markings_as_fallback``, the covariance floor at the map's uncertainty. Switched-off
-    kinds (``use_slots`` ...) are not modelled, nor the heading the localizer reports raised
-    to the map's slots' near the car (``map_heading_radius``): the prediction is the filter's
-    own covariance, which differs from the report in the heading alone, in frames that see
-    lines but no slot within reach of one. The painted lines are the map's own: the slots'
-    separators the localizer adds where the map holds none (``slot_sides_as_markings``) are
-    not, so where they would be the prediction is the more cautious."""
+    ``markings_as_fallback``, the covariance floor at the map's uncertainty, the kinds
+    switched off (``use_slots``, ``use_tags``, ``use_markings``) and the slots' separators
+    as painted lines (``slot_sides_as_markings``; build the geometry with
+    :meth:`MapGeometry.for_model`). Not modelled: the heading the localizer reports raised
+    to the map's slots' near the car (``map_heading_radius``): the prediction is the
+    filter's own covariance, which differs from the report in the heading alone, in frames
+    that see lines but no slot within reach of one."""
     return LocalizerModel(
         corner_sigma_min=cfg.slot_corner_sigma_min,
         map_covariance_scale=cfg.map_covariance_scale,
@@ -269,6 +279,10 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
         fallback_below=cfg.fallback_below if cfg.markings_as_fallback else 0,
         map_floor_scale=cfg.map_floor_scale,
         marking_map_sigma=cfg.marking_map_sigma,
+        use_slots=cfg.use_slots,
+        use_tags=cfg.use_tags,
+        use_markings=cfg.use_markings,
+        slot_sides=cfg.slot_sides_as_markings,
     )
 
 
@@ -282,7 +296,9 @@ class MapGeometry:
     """The map's landmarks as arrays, ready for many poses; :meth:`around` keeps those near
     one place, so that a pose's cost does not grow with the size of the garage."""
 
-    def __init__(self, semantic_map: SemanticMap) -> None:
+    def __init__(self, semantic_map: SemanticMap, with_slot_sides: bool = False) -> None:
+        """``with_slot_sides``: the slots' separators join the painted lines where the map
+        holds none, as the localizer's do (``slot_sides_as_markings``)."""
         self._trees: dict[str, tuple[cKDTree, np.ndarray]] = {}
         slots = semantic_map.slots
         self.corners = np.array([c for s in slots for c in s.corners], float).reshape(-1, 2)
@@ -295,7 +311,14 @@ class MapGeometry:
         tags = semantic_map.tags
         self.tags = np.array([t.mTt for t in tags], float).reshape(-1, 3)
         self.tag_cov = np.array([t.covariance for t in tags], float).reshape(-1, 3, 3)
-        self.lines = np.array([[m.a, m.b] for m in semantic_map.markings], float).reshape(-1, 2, 2)
+        markings = semantic_map.markings + (slot_sides(semantic_map) if with_slot_sides else ())
+        self.lines = np.array([[m.a, m.b] for m in markings], float).reshape(-1, 2, 2)
+
+    @classmethod
+    def for_model(cls, semantic_map: SemanticMap, model: LocalizerModel) -> MapGeometry:
+        """The map's landmarks as ``model``'s filter uses them (its slots' separators among
+        the painted lines if ``model.slot_sides``)."""
+        return cls(semantic_map, with_slot_sides=model.slot_sides)
 
     def around(self, point: FloatArray, sensors: SensorModel, model: LocalizerModel) -> MapGeometry:
         """The landmarks that can be in view at ``point`` (x, y, metres; map frame) whatever
@@ -390,7 +413,7 @@ def _frame(
     counts = {"corners": 0, "slots": 0, "tags": 0, "lines": 0}
     slot_floor = None
     # slot corners: vP = R^T (mP - t)
-    if len(geometry.corners):
+    if model.use_slots and len(geometry.corners):
         if sensors.slot_rule == "corners":
             seen = np.nonzero(_in_topview((geometry.corners - pose[:2]) @ R, sensors))[0]
         else:  # whole slots whose entrance is in view
@@ -414,7 +437,7 @@ def _frame(
                 np.isin(geometry.slot_of_corner, slots)].mean(axis=0)
             slot_floor[2, 2] = geometry.heading_var[slots].mean()
     # tags: vTt = mTv^-1 mTt, in the camera's field of view, facing it
-    if len(geometry.tags):
+    if model.use_tags and len(geometry.tags):
         limit = min(sensors.tag_range_limit, model.tag_range_limit)
         tag_sensors = sensors if limit == sensors.tag_range_limit else replace(
             sensors, tag_range_limit=limit)
@@ -427,7 +450,7 @@ def _frame(
     marking_sigma = model.marking_sigma if model.marking_sigma is not None else (
         sensors.marking_sigma)
     lines = _lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
-    if len(lines):
+    if model.use_markings and len(lines):
         ends, keep = clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
                                     -half, half)
         d = lines[:, 1] - lines[:, 0]

@@ -8,10 +8,10 @@ route coloured by the filtered sigma) into the output folder, atomically; with t
 
 Grades: Hofmann's ``automotive`` and ``precise`` (an ideal filter that uses every landmark
 in view in every frame), or ``localizer``: semslam's own localizer as configured
-(``localization`` section: its process noise, painted lines as a fallback, corner sigma
-floor, map covariance scale and floor) on the simulator's detectors
-(``simulation.observation_noise``: their miss rates, whole slots by their entrance) at
-the simulator's odometry rate.
+(``localization`` section: its process noise, the kinds it uses, painted lines and the
+slots' separators as a fallback, corner sigma floor, map covariance scale and floor) on
+the simulator's detectors (``simulation.observation_noise``: their miss rates, whole slots
+by their entrance) at the simulator's odometry rate.
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ def predicted_accuracy(
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{name}: must be a positive number of metres, got {value}")
     semantic_map = load_map(map_path)
-    geometry = MapGeometry(semantic_map)
+    geometry = MapGeometry.for_model(semantic_map, model)
     bounds = geometry.bounds()
     if route is not None:
         t, poses = read_tum(route)

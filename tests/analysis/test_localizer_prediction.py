@@ -134,6 +134,39 @@ def test_lines_are_a_fallback_the_localizer_uses_only_with_few_slots():
     np.testing.assert_allclose(info_rates, want, rtol=1e-9)
 
 
+def test_kinds_switched_off_are_not_used_and_lines_then_fall_back_alone():
+    _, _, both = _slots_and_line()
+    g = MapGeometry(both)
+    pose, sure = np.zeros(3), SensorModel(slot_rule="entrance")
+    cfg = LocalizationConfig(use_slots=False, use_tags=False)
+    model = localizer_model(cfg)
+    assert not model.use_slots and not model.use_tags and model.use_markings
+    info, counts = frame_information(g, pose, sure, model)
+    assert counts["slots"] == counts["corners"] == 0 and counts["lines"] == 1
+    line_only, _ = frame_information(MapGeometry(_slots_and_line()[1]), pose, sure, model)
+    np.testing.assert_allclose(info, line_only)  # the slots no longer hold the line back
+    off = localizer_model(LocalizationConfig(use_markings=False))
+    info, counts = frame_information(MapGeometry(_slots_and_line()[1]), pose, sure, off)
+    assert counts["lines"] == 0 and not info.any()
+
+
+def test_the_slots_separators_join_the_lines_as_the_localizers_do():
+    slots, _, _ = _slots_and_line()  # three slots side by side, no painted line mapped
+    plain = MapGeometry(slots)
+    model = localizer_model(LocalizationConfig(use_slots=False, use_tags=False))
+    assert model.slot_sides and not len(plain.lines)
+    sided = MapGeometry.for_model(slots, model)
+    assert len(sided.lines) == 4  # the three slots' six sides, the shared ones once
+    assert len(MapGeometry.for_model(slots, replace(model, slot_sides=False)).lines) == 0
+    sure = SensorModel(slot_rule="entrance")
+    info, counts = frame_information(sided, np.zeros(3), sure, model)
+    assert counts["lines"] == 4 and info[0, 0] > 0  # separators across x fix x
+    # a map that holds the separators already gets none twice
+    held = SemanticMap(slots=slots.slots, markings=tuple(
+        Marking(np.array(a, float), np.array(b, float), 0.1) for a, b in sided.lines))
+    assert len(MapGeometry.for_model(held, model).lines) == 4
+
+
 def test_whole_slots_by_their_entrance_like_the_simulator():
     deep = SemanticMap(slots=(_slot(-1.0, 2.0, 1),))  # far corners at y = 7: outside the view
     g = MapGeometry(deep)
@@ -205,3 +238,33 @@ def test_accuracy_command_takes_the_localizer_grade(tmp_path):
                                  str(tmp_path / "route.tum"), "-o", str(tmp_path / "p"),
                                  "--grade", "localizer"])
     assert result.exit_code == 2  # the planner's information has no marking fallback
+
+
+def test_accuracy_command_predicts_the_localizer_of_a_config_file(tmp_path):
+    slots, _, _ = _slots_and_line()
+    save_map(tmp_path / "map.json", slots)
+    t = np.arange(0.0, 4.0, 0.5)
+    write_tum(tmp_path / "route.tum", t, np.column_stack([0.2 * t, np.zeros_like(t),
+                                                          np.zeros_like(t)]))
+    (tmp_path / "lines.json").write_text('{"localization": {"use_slots": false}}')
+    runner = CliRunner()
+
+    def route_sigma(out, *extra):
+        result = runner.invoke(app, ["accuracy", str(tmp_path / "map.json"), "--route",
+                                     str(tmp_path / "route.tum"), "-o", str(out), "--grid-step",
+                                     "4", "--grade", "localizer", "--json", *extra])
+        assert result.exit_code == 0, result.output
+        return json.loads(result.stdout)["route"]["filtered_sigma_median_m"]
+
+    with_slots = route_sigma(tmp_path / "a")
+    out = tmp_path / "b"
+    lines_only = route_sigma(out, "--config", str(tmp_path / "lines.json"))
+    # the slots' separators alone fix the pose across them only: less sure than the corners
+    assert lines_only > with_slots
+    written = json.loads((out / "config.json").read_text())
+    assert written["localization"]["use_slots"] is False
+    # a re-run with the config the last one wrote back replaces it by the same
+    assert route_sigma(out, "--config", str(out / "config.json")) == lines_only
+    result = runner.invoke(app, ["accuracy", str(tmp_path / "map.json"), "-o",
+                                 str(tmp_path / "h"), "--config", str(tmp_path / "lines.json")])
+    assert result.exit_code == 2 and "only --grade localizer" in result.output
