@@ -234,6 +234,9 @@ class LocalizerModel:
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
         marking_map_sigma: assumed uncertainty of a map line (maps store none), m.
+        map_heading_radius: the heading variance reported (not the filter's) is at least
+            ``map_floor_scale`` times the mean orientation variance of the map's slots whose
+            centre lies this near the pose, m (0: as the filter holds it).
         use_slots, use_tags, use_markings: a kind switched off is never used.
         slot_sides: the slots' separators join the map's painted lines where it holds none
             (:func:`~semslam.localization.slot_sides.slot_sides`); read by
@@ -248,6 +251,7 @@ class LocalizerModel:
     fallback_below: int = 0
     map_floor_scale: float = 0.0
     marking_map_sigma: float = 0.0
+    map_heading_radius: float = 0.0
     use_slots: bool = True
     use_tags: bool = True
     use_markings: bool = True
@@ -266,10 +270,8 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     ``markings_as_fallback``, the covariance floor at the map's uncertainty, the kinds
     switched off (``use_slots``, ``use_tags``, ``use_markings``) and the slots' separators
     as painted lines (``slot_sides_as_markings``; build the geometry with
-    :meth:`MapGeometry.for_model`). Not modelled: the heading the localizer reports raised
-    to the map's slots' near the car (``map_heading_radius``): the prediction is the
-    filter's own covariance, which differs from the report in the heading alone, in frames
-    that see lines but no slot within reach of one."""
+    :meth:`MapGeometry.for_model`), and the heading it reports raised to the map's slots'
+    near the car (``map_heading_radius``)."""
     return LocalizerModel(
         corner_sigma_min=cfg.slot_corner_sigma_min,
         map_covariance_scale=cfg.map_covariance_scale,
@@ -279,6 +281,7 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
         fallback_below=cfg.fallback_below if cfg.markings_as_fallback else 0,
         map_floor_scale=cfg.map_floor_scale,
         marking_map_sigma=cfg.marking_map_sigma,
+        map_heading_radius=cfg.map_heading_radius,
         use_slots=cfg.use_slots,
         use_tags=cfg.use_tags,
         use_markings=cfg.use_markings,
@@ -306,6 +309,8 @@ class MapGeometry:
             -1, 2, 2
         )
         self.heading_var = np.array([s.orientation_variance for s in slots], float)
+        self.slot_centres = np.array([np.mean(s.corners, axis=0) for s in slots],
+                                     float).reshape(-1, 2)
         self.slot_of_corner = np.repeat(np.arange(len(slots)), [len(s.corners) for s in slots])
         self.entrances = np.array([s.corners[:2] for s in slots], float).reshape(-1, 2, 2)
         tags = semantic_map.tags
@@ -342,6 +347,14 @@ class MapGeometry:
         pieces = self._near("lines", None, point, view + 0.5 * _LINE_PIECE)
         near.lines = self.lines[pieces]
         return near
+
+    def heading_variance_near(self, point: FloatArray, radius: float) -> float | None:
+        """The mean orientation variance (rad^2) of the slots whose centre lies within
+        ``radius`` m of ``point`` (x, y; map frame), as the localizer's
+        ``LocalMap.heading_variance_near``; None where no slot is that near."""
+        near = self._near("slot_centres", self.slot_centres, np.asarray(point, float)[:2],
+                          radius)
+        return float(self.heading_var[near].mean()) if len(near) else None
 
     def _near(self, kind: str, points: FloatArray | None, point: FloatArray,
               reach: float) -> np.ndarray:
@@ -769,10 +782,12 @@ def predicted_along_route(
     Returns:
         ``single_sigma`` and ``filtered_sigma`` (m, position semi-axis), ``single_yaw_deg``
         and ``filtered_yaw_deg`` (1-sigma), ``corners``, ``slots``, ``tags``, ``lines``
-        (counts in view), ``covariance`` (N, 3, 3; the filtered covariance: m, rad).
+        (counts in view), ``covariance`` (N, 3, 3; the filtered covariance: m, rad; its
+        heading as reported, :func:`reported_heading`).
     """
     infos, counts, floors = _route_frames(geometry, poses, sensors, model)
-    filtered = filter_route(infos, poses, times, grade, floors)
+    filtered = reported_heading(geometry, poses,
+                                filter_route(infos, poses, times, grade, floors), model)
     singles = [single_frame_covariance(info) for info in infos]
     return {
         "single_sigma": np.array([position_sigma(q) for q in singles]),
@@ -782,6 +797,25 @@ def predicted_along_route(
         "covariance": filtered,
         **{k: v.astype(float) for k, v in counts.items()},
     }
+
+
+def reported_heading(
+    geometry: MapGeometry, poses: FloatArray, covs: FloatArray, model: LocalizerModel
+) -> FloatArray:
+    """``covs`` (N, 3, 3) at ``poses`` with each heading variance raised, as the localizer
+    reports it, to ``map_floor_scale`` times the mean orientation variance of the map's
+    slots within ``map_heading_radius`` of the pose; the filter itself is not raised, so
+    this comes after :func:`filter_route`. A copy; ``covs`` itself if the model raises
+    nothing."""
+    k, radius = model.map_floor_scale, model.map_heading_radius
+    if k <= 0 or radius <= 0 or not len(geometry.slot_centres):
+        return covs
+    out = np.array(covs, float)
+    for n, pose in enumerate(np.asarray(poses, float).reshape(-1, 3)):
+        heading = geometry.heading_variance_near(pose, radius)
+        if heading is not None and out[n, 2, 2] < k * heading:
+            out[n, 2, 2] = k * heading
+    return out
 
 
 def predicted_on_grid(
@@ -895,6 +929,7 @@ __all__ = [
     "position_sigma",
     "position_sigmas",
     "predicted_along_route",
+    "reported_heading",
     "predicted_on_grid",
     "route_floors",
     "route_information",

@@ -26,6 +26,7 @@ from semslam.cli import app
 from semslam.config import LocalizationConfig, ObservationNoiseConfig
 from semslam.errors import ConfigError
 from semslam.io import save_map, write_tum
+from semslam.localization.association import LocalMap
 from semslam.localization.filter import CtrvFilter, ProcessNoise
 from semslam.pipeline.accuracy import predicted_accuracy, prediction_model
 from semslam.types import Marking, SemanticMap, Slot, SlotKind
@@ -165,6 +166,32 @@ def test_the_slots_separators_join_the_lines_as_the_localizers_do():
     held = SemanticMap(slots=slots.slots, markings=tuple(
         Marking(np.array(a, float), np.array(b, float), 0.1) for a, b in sided.lines))
     assert len(MapGeometry.for_model(held, model).lines) == 4
+
+
+def test_the_heading_is_reported_at_least_at_the_map_slots_heading_error_near_the_car():
+    slots = tuple(_slot(-3.0 + 2.5 * k, 1.2, k, cov=0.05**2) for k in range(3))
+    cross = (Marking(np.array([-4.0, -2.0]), np.array([4.0, -2.0]), 0.1),
+             Marking(np.array([3.0, -4.0]), np.array([3.0, -1.0]), 0.1))
+    m = SemanticMap(slots=slots, markings=cross)
+    cfg = LocalizationConfig(use_slots=False, use_tags=False)  # lines alone update the filter
+    model = localizer_model(cfg)
+    assert model.map_heading_radius == cfg.map_heading_radius > 0
+    geometry = MapGeometry.for_model(m, model)
+    # the same slots near a point as the localizer's own local map finds
+    local = LocalMap(m, cfg)
+    for point in ([0.0, 0.0], [1.0, 3.0], [30.0, 0.0]):
+        assert geometry.heading_variance_near(np.array(point), 5.0) == (
+            local.heading_variance_near(np.array(point), 5.0))
+    t = np.arange(0.0, 10.0, 0.1)
+    poses = np.column_stack([0.1 * t, np.zeros_like(t), np.zeros_like(t)])
+    sure, grade = SensorModel(slot_rule="entrance"), localizer_grade(cfg, RATE)
+    reported = predicted_along_route(geometry, poses, t, grade, sure, model)["covariance"]
+    held = predicted_along_route(geometry, poses, t, grade, sure,
+                                 replace(model, map_heading_radius=0.0))["covariance"]
+    heading = cfg.map_floor_scale * np.mean([s.orientation_variance for s in slots])
+    assert held[-1, 2, 2] < 0.5 * heading  # the lines make the filter surer than the map
+    np.testing.assert_allclose(reported[:, 2, 2], np.maximum(held[:, 2, 2], heading))
+    np.testing.assert_array_equal(reported[:, :2, :2], held[:, :2, :2])  # the report only
 
 
 def test_whole_slots_by_their_entrance_like_the_simulator():
