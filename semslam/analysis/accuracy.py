@@ -462,8 +462,9 @@ def _frame(
     half = sensors.topview_half_m
     marking_sigma = model.marking_sigma if model.marking_sigma is not None else (
         sensors.marking_sigma)
-    lines = _lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
-    if model.use_markings and len(lines):
+    lines = (_lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
+             if model.use_markings else geometry.lines[:0])
+    if len(lines):
         ends, keep = clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
                                     -half, half)
         d = lines[:, 1] - lines[:, 0]
@@ -929,8 +930,8 @@ __all__ = [
     "position_sigma",
     "position_sigmas",
     "predicted_along_route",
-    "reported_heading",
     "predicted_on_grid",
+    "reported_heading",
     "route_floors",
     "route_information",
     "simulated_sensors",
