@@ -47,6 +47,11 @@ _MARKING_SAMPLE = 1.0  # m between points sampled along map markings for the KD-
 _MINUS_IDENTITY_8x2 = -np.tile(np.eye(2), (4, 1))  # d(mV - mP)/d(x, y) for four corners
 _QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])  # (d_x, d_y) @ it = (d_y, -d_x)
 _LOCAL_MAP_MARGIN = 4.0  # m: a local map reaches this far beyond a frame's reach
+# two map lines this near to parallel, each end of one this near the other's line, are one
+# painted line in pieces (a vector map's polyline, or separators back to back): not rivals
+# in the second-nearest test, whichever is taken the update is the same within its noise
+SAME_LINE_DEG = 2.0
+SAME_LINE_M = 0.05
 
 
 class _LocalBall:
@@ -320,6 +325,17 @@ class LocalMap:
         if unheld:
             out.unmapped += out.rejected["marking"] - rejected_before
 
+    def _same_line(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Are map lines ``j`` pieces of map lines ``i``'s painted line (elementwise):
+        within :data:`SAME_LINE_DEG` of parallel, both ends of ``j`` within
+        :data:`SAME_LINE_M` of ``i``'s line (the infinite line: pieces end to end)?"""
+        n = self._marking_n[i]
+        parallel = np.abs((self._marking_u[j] * n).sum(axis=1)) < math.sin(
+            math.radians(SAME_LINE_DEG))
+        off_a = np.abs(((self.marking_a[j] - self.marking_a[i]) * n).sum(axis=1))
+        off_b = np.abs(((self.marking_b[j] - self.marking_a[i]) * n).sum(axis=1))
+        return parallel & (off_a < SAME_LINE_M) & (off_b < SAME_LINE_M)
+
     def _match_markings(self, out, pose, P, vE, mE, sigma, length, local, s, c) -> None:
         """Houben's tests on every (detection, local marking) pair, then the winners'
         stacked measurement (see :meth:`_markings`)."""
@@ -350,12 +366,16 @@ class LocalMap:
             return
         order = np.lexsort((d2, det))
         det, own, d2 = det[order], own[order], d2[order]
-        first = [0, *(np.flatnonzero(det[1:] != det[:-1]) + 1).tolist()]
-        d2_list = d2.tolist()
+        starts = np.flatnonzero(np.r_[True, det[1:] != det[:-1]])
+        first = starts.tolist()
+        # a candidate that is the best one's own painted line, in another piece, is no rival
+        best_of = own[starts[np.searchsorted(starts, np.arange(len(det)), side="right") - 1]]
+        rival = ~self._same_line(best_of, own)
+        d2_list, rival_list = d2.tolist(), rival.tolist()
         winners = []
         for i, f in enumerate(first):
             nxt = first[i + 1] if i + 1 < len(first) else len(det)
-            runner_up = d2_list[f + 1] if nxt > f + 1 else math.inf
+            runner_up = next((d2_list[g] for g in range(f + 1, nxt) if rival_list[g]), math.inf)
             best = d2_list[f]
             if best <= self._marking_gates[2] and runner_up >= cfg.second_nearest_ratio * max(
                 best, 2.0

@@ -181,3 +181,21 @@ def test_a_separator_the_map_holds_only_through_its_slots_is_associated_with_the
     assert with_sides.count == 1 and with_sides.kinds == ["marking"]
     off = cfg.model_copy(update={"slot_sides_as_markings": False})
     assert LocalMap(SemanticMap(slots=slots), off).associate(frame, pose, P).count == 0
+
+
+def test_a_painted_line_in_two_pieces_end_to_end_is_no_rival_to_itself():
+    # one painted line as two pieces meeting at x = 5 (3 cm apart across: two separators
+    # back to back), and a parallel line 0.3 m away
+    pieces = (Marking(np.array([0.0, 2.0]), np.array([5.0, 2.0]), 0.12),
+              Marking(np.array([5.0, 2.03]), np.array([10.0, 2.03]), 0.12))
+    P = np.diag([0.01, 0.01, 1e-4])
+    car = np.array([3.0, 0.0, 0.0])
+    seen = FrameObservations(0.0, markings=(  # 3 m of it ending at the joint, 2 m to the left
+        MarkingObservation(np.array([-1.0, 2.0]), np.array([2.0, 2.0]), 0.12, 0.9, 0.02),))
+    out = LocalMap(SemanticMap(markings=pieces), CFG).associate(seen, car, P)
+    assert out.count == 1 and out.rejected["marking"] == 0
+    # a truly different line as near is still a rival: the ratio test refuses the choice
+    rivals = (pieces[0], Marking(np.array([0.0, 2.3]), np.array([10.0, 2.3]), 0.12))
+    out = LocalMap(SemanticMap(markings=rivals), CFG).associate(seen, car, np.diag(
+        [0.09, 0.09, 1e-4]))
+    assert out.count == 0 and out.rejected["marking"] == 1
