@@ -50,8 +50,8 @@ _LOCAL_MAP_MARGIN = 4.0  # m: a local map reaches this far beyond a frame's reac
 # two map lines this near to parallel, each end of one this near the other's line, are one
 # painted line in pieces (a vector map's polyline, or separators back to back): not rivals
 # in the second-nearest test, whichever is taken the update is the same within its noise
-SAME_LINE_DEG = 2.0
-SAME_LINE_M = 0.05
+PIECE_ANGLE_DEG = 2.0
+PIECE_OFFSET_M = 0.05
 
 
 class _LocalBall:
@@ -327,14 +327,14 @@ class LocalMap:
 
     def _same_line(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Are map lines ``j`` pieces of map lines ``i``'s painted line (elementwise):
-        within :data:`SAME_LINE_DEG` of parallel, both ends of ``j`` within
-        :data:`SAME_LINE_M` of ``i``'s line (the infinite line: pieces end to end)?"""
+        within :data:`PIECE_ANGLE_DEG` of parallel, both ends of ``j`` within
+        :data:`PIECE_OFFSET_M` of ``i``'s line (the infinite line: pieces end to end)?"""
         n = self._marking_n[i]
         parallel = np.abs((self._marking_u[j] * n).sum(axis=1)) < math.sin(
-            math.radians(SAME_LINE_DEG))
+            math.radians(PIECE_ANGLE_DEG))
         off_a = np.abs(((self.marking_a[j] - self.marking_a[i]) * n).sum(axis=1))
         off_b = np.abs(((self.marking_b[j] - self.marking_a[i]) * n).sum(axis=1))
-        return parallel & (off_a < SAME_LINE_M) & (off_b < SAME_LINE_M)
+        return parallel & (off_a < PIECE_OFFSET_M) & (off_b < PIECE_OFFSET_M)
 
     def _match_markings(self, out, pose, P, vE, mE, sigma, length, local, s, c) -> None:
         """Houben's tests on every (detection, local marking) pair, then the winners'
