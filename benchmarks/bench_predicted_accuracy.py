@@ -189,13 +189,14 @@ def nees_run(root: Path, seed: int) -> dict:
     cfg = load_config(None)
     cfg = cfg.model_copy(update={"localization": cfg.localization.model_copy(
         update={"marking_map_sigma": 0.0})})
-    geometry = MapGeometry(load_map(drive / "world.json"))
+    world = load_map(drive / "world.json")
+    geometry = MapGeometry(world)
     infos, _ = route_information(geometry, truth)  # Hofmann: SensorModel(), ideal filter
     predictions = {g.name: filter_route(infos, truth, truth_t, g)[:, :2, :2]
                    for g in (simulator_grade(), GRADES["automotive"])}
     model = localizer_model(cfg.localization)
     along = predicted_along_route(
-        MapGeometry.for_model(load_map(drive / "world.json"), model), truth, truth_t,
+        MapGeometry.for_model(world, model), truth, truth_t,
         localizer_grade(cfg.localization, cfg.simulation.drive.odometry_rate),
         simulated_sensors(cfg.simulation.observation_noise), model)
     predictions["localizer"] = along["covariance"][:, :2, :2]

@@ -369,7 +369,7 @@ class LocalMap:
         starts = np.flatnonzero(np.r_[True, det[1:] != det[:-1]])
         first = starts.tolist()
         # a candidate that is the best one's own painted line, in another piece, is no rival
-        best_of = own[starts[np.searchsorted(starts, np.arange(len(det)), side="right") - 1]]
+        best_of = np.repeat(own[starts], np.diff(np.r_[starts, len(det)]))
         rival = ~self._same_line(best_of, own)
         d2_list, rival_list = d2.tolist(), rival.tolist()
         winners = []
