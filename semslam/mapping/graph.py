@@ -36,6 +36,15 @@ from semslam.errors import MappingError
 from semslam.geometry import FloatArray
 from semslam.mapping.levenberg import levenberg_marquardt
 
+# Sigma of the vague prior every variable gets in the linearised graph of marginals()
+# (m for positions and line offsets, rad for angles, units of the calibration). Vague for
+# the whole map too: a turn of the map about its anchor by delta moves each of N variables
+# by its distance r from the anchor, and their priors hold that turn with the information
+# sum(r^2) / sigma^2. At 10 m, `large`'s 20,000 variables 100-250 m out held the map's heading
+# to about 0.1 deg, tighter than the graph itself: its maps were twice as far off as their
+# covariances said (BENCHMARKS.md). At 10 km that information is a millionth of it.
+VAGUE_SIGMA = 1e4
+
 
 class Graph:
     """All factors ever added (for the final batch solve) plus an incremental iSAM2."""
@@ -212,9 +221,10 @@ class Graph:
 
         gtsam's Marginals eliminate by Cholesky, which refuses a nearly indeterminate
         system (on `large`, a slot corner whose observations all sat on the null
-        hypothesis). Every variable therefore gets a vague prior (sigma 10 m or 10 rad) in
-        the linearised graph: it changes a determined variable's covariance by about a
-        part in 10^5 and gives an undetermined one a large, honest covariance. A graph
+        hypothesis). Every variable therefore gets a vague prior (sigma
+        :data:`VAGUE_SIGMA`, 10 km or rad) in the linearised graph: it leaves a determined
+        variable's covariance, and the map's turn about its anchor, as the graph has them,
+        and gives an undetermined one a large, honest covariance. A graph
         Cholesky still refuses as a whole (`large` world 3: odometry information up to 1e9
         beside those priors) is eliminated by QR instead, into a Bayes tree that answers
         the same two questions (1 s for world 3's 35,000 unknowns)."""
@@ -232,7 +242,7 @@ class Graph:
     def _linearized_with_vague_priors(self, factors: gtsam.NonlinearFactorGraph):
         linear = factors.linearize(self.estimate)
         for key, dim in self._dims.items():
-            vague = np.eye(dim) * 0.1
+            vague = np.eye(dim) / VAGUE_SIGMA
             linear.add(gtsam.JacobianFactor(key, vague, np.zeros(dim), self._unit[dim]))
         return linear
 

@@ -131,3 +131,24 @@ def test_a_graph_cholesky_refuses_gets_the_same_marginals_from_qr(monkeypatch):
     np.testing.assert_allclose(qr.jointMarginalCovariance(keys).fullMatrix(),
                                cholesky.jointMarginalCovariance(keys).fullMatrix(),
                                rtol=1e-8, atol=1e-14)
+
+
+def test_the_vague_priors_of_the_marginals_leave_a_long_map_s_heading_to_the_graph():
+    """A 1 km straight drive, odometry only: the last pose's heading variance is the sum of
+    the steps' (the anchor holds the first). Priors of 10 m on every pose held the heading
+    of the whole line about its anchor ~100x tighter than that (a turn by delta moves a
+    pose r from the anchor by r * delta; 1,000 priors summed). On `large` the maps were too
+    sure of their heading so."""
+    graph = Graph()
+    steps, step, yaw_sigma = 1000, 1.0, 1e-3
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01, 0.01, yaw_sigma]))
+    graph.add_pose(X(0), np.zeros(3))
+    graph.add_factor(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(
+        3, 1e-6)))
+    for k in range(1, steps + 1):
+        graph.add_pose(X(k), np.array([k * step, 0.0, 0.0]))
+        graph.add_factor(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(step, 0.0, 0.0),
+                                                  noise))
+    graph.update()
+    heading_variance = graph.marginals().marginalCovariance(X(steps))[2, 2]
+    assert heading_variance == pytest.approx(steps * yaw_sigma**2, rel=1e-3)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from semslam.mapping.factors import custom_factor, slot_observation_residual
-from semslam.mapping.graph import Graph
+from semslam.mapping.graph import VAGUE_SIGMA, Graph
 from semslam.mapping.shared_error import (
     SlotSightingFactor,
     has_shared_error,
@@ -54,13 +54,13 @@ def _seen_from(weights, own=None, shared=None, slots: int = 1, pose_sigma: float
     return graph, sightings
 
 
-VAGUE = 0.01  # the information of the vague prior every unknown gets (sigma 10 m)
+VAGUE = VAGUE_SIGMA**-2  # the information of the vague prior every unknown gets
 
 
 def _weighted_mean_variance(weights, own, shared) -> np.ndarray:
     """Per corner: the variance of a mean weighted by w_i^-2 of sightings with own noise o_i
-    (per corner) and a shared error s, beside the vague prior (a measurement of sigma 10 m
-    whose residual, like the others', spreads as it says)."""
+    (per corner) and a shared error s, beside the vague prior (a measurement of sigma
+    VAGUE_SIGMA whose residual, like the others', spreads as it says)."""
     inv = np.asarray(weights, float) ** -2
     own = np.broadcast_to(np.asarray(own, float), (len(inv), 4))
     spread = (inv**2) @ own**2 + np.asarray(shared, float) ** 2 * inv.sum() ** 2 + VAGUE
@@ -188,7 +188,7 @@ def test_the_jacobian_columns_are_gtsams():
     linear = graph.factors.linearize(graph.estimate)
     for key in keys:  # the vague priors jacobian() adds
         dim = 3 if gtsam.Symbol(key).chr() == ord("x") else 2
-        linear.add(gtsam.JacobianFactor(key, np.eye(dim) * 0.1, np.zeros(dim),
+        linear.add(gtsam.JacobianFactor(key, np.eye(dim) / VAGUE_SIGMA, np.zeros(dim),
                                         gtsam.noiseModel.Unit.Create(dim)))
     hessian, _ = linear.hessian(ordering)
     np.testing.assert_allclose((A.T @ A).toarray(), hessian, rtol=1e-9, atol=1e-9)
@@ -197,7 +197,7 @@ def test_the_jacobian_columns_are_gtsams():
 
 def test_a_landmark_never_seen_has_no_error_of_its_own():
     """A slot whose sightings all went to the null hypothesis is still answered: its vague
-    prior, 10 m."""
+    prior (VAGUE_SIGMA)."""
     graph, sightings = _seen_from([0.3] * 3, 0.02, 0.01, slots=2)
     kept = [s if s.landmark == 0 else SlotSightingFactor(s.index, s.keyframe, None,
                                                          s.observation, s.sigma)
