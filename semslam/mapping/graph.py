@@ -44,6 +44,10 @@ from semslam.mapping.levenberg import levenberg_marquardt
 # to about 0.1 deg, tighter than the graph itself: its maps were twice as far off as their
 # covariances said (BENCHMARKS.md). At 10 km that information is a millionth of it.
 VAGUE_SIGMA = 1e4
+# The second tier of marginals(): for a key whose clique the first refuses (an almost
+# undetermined landmark beside well-determined ones; `large` world 3: 616 slots), priors of
+# 10 m, which hold the map's heading somewhat, rather than no covariance from the graph.
+STEADY_VAGUE_SIGMA = 10.0
 
 
 class Graph:
@@ -214,7 +218,7 @@ class Graph:
         with _one_line_errors():
             return np.asarray(self.isam.calculateEstimateVector(key), dtype=float)
 
-    def marginals(self) -> gtsam.Marginals | gtsam.GaussianBayesTree | None:
+    def marginals(self) -> TieredMarginals | None:
         """Marginal covariances at the current estimate: an object with
         ``marginalCovariance(key)`` and ``jointMarginalCovariance(keys).fullMatrix()``, or
         None if even QR finds the system singular.
@@ -227,8 +231,14 @@ class Graph:
         and gives an undetermined one a large, honest covariance. A graph
         Cholesky still refuses as a whole (`large` world 3: odometry information up to 1e9
         beside those priors) is eliminated by QR instead, into a Bayes tree that answers
-        the same two questions (1 s for world 3's 35,000 unknowns)."""
-        linear = self._linearized_with_vague_priors(self.factors)
+        the same two questions (1 s for world 3's 35,000 unknowns). A key whose clique is
+        refused there is asked again of the same system with priors of
+        :data:`STEADY_VAGUE_SIGMA` (built only then)."""
+        tiered = TieredMarginals(self._marginals_with)
+        return tiered if tiered.answers() else None
+
+    def _marginals_with(self, vague_sigma: float):
+        linear = self._linearized_with_vague_priors(self.factors, vague_sigma)
         try:
             return gtsam.Marginals(linear, self.estimate)
         except RuntimeError:
@@ -239,10 +249,12 @@ class Graph:
         except RuntimeError:
             return None
 
-    def _linearized_with_vague_priors(self, factors: gtsam.NonlinearFactorGraph):
+    def _linearized_with_vague_priors(
+        self, factors: gtsam.NonlinearFactorGraph, vague_sigma: float = VAGUE_SIGMA
+    ):
         linear = factors.linearize(self.estimate)
         for key, dim in self._dims.items():
-            vague = np.eye(dim) / VAGUE_SIGMA
+            vague = np.eye(dim) / vague_sigma
             linear.add(gtsam.JacobianFactor(key, vague, np.zeros(dim), self._unit[dim]))
         return linear
 
@@ -265,6 +277,44 @@ class Graph:
         A = sp.csr_matrix((vals[inside], (rows[inside], cols[inside])),
                           shape=(int(rows.max()) + 1, n))
         return A, columns
+
+
+class TieredMarginals:
+    """Marginals of the linearised graph with priors of :data:`VAGUE_SIGMA`; a question
+    that system refuses (RuntimeError) goes to the same graph with priors of
+    :data:`STEADY_VAGUE_SIGMA`, solved on first need. ``solve(sigma)``: gtsam's Marginals or
+    a QR Bayes tree of the graph with priors of that sigma, or None."""
+
+    def __init__(self, solve) -> None:
+        self._solve = solve
+        self._tiers: dict[float, object] = {VAGUE_SIGMA: solve(VAGUE_SIGMA)}
+
+    def _tier(self, sigma: float):
+        if sigma not in self._tiers:
+            self._tiers[sigma] = self._solve(sigma)
+        return self._tiers[sigma]
+
+    def answers(self) -> bool:
+        """Whether any tier could be built."""
+        return self._tier(VAGUE_SIGMA) is not None or self._tier(STEADY_VAGUE_SIGMA) is not None
+
+    def _ask(self, method: str, arg):
+        error = RuntimeError("no tier of the marginals could be built")
+        for sigma in (VAGUE_SIGMA, STEADY_VAGUE_SIGMA):
+            tier = self._tier(sigma)
+            if tier is None:
+                continue
+            try:
+                return getattr(tier, method)(arg)
+            except RuntimeError as e:
+                error = e
+        raise error
+
+    def marginalCovariance(self, key: int):  # noqa: N802 (gtsam's name)
+        return self._ask("marginalCovariance", key)
+
+    def jointMarginalCovariance(self, keys):  # noqa: N802
+        return self._ask("jointMarginalCovariance", keys)
 
 
 @contextmanager

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from semslam.mapping.factors import custom_factor, slot_observation_residual
-from semslam.mapping.graph import Graph
+from semslam.mapping.graph import STEADY_VAGUE_SIGMA, VAGUE_SIGMA, Graph, TieredMarginals
 
 X = gtsam.symbol_shorthand.X
 P = gtsam.symbol_shorthand.P
@@ -116,7 +116,7 @@ def test_a_graph_cholesky_refuses_gets_the_same_marginals_from_qr(monkeypatch):
     _circle(graph, steps=12)
     graph.optimize_batch()
     cholesky = graph.marginals()
-    assert isinstance(cholesky, gtsam.Marginals)
+    assert isinstance(cholesky._tier(VAGUE_SIGMA), gtsam.Marginals)
 
     def refuse(*args):
         raise RuntimeError("Indeterminate linear system detected")
@@ -152,3 +152,30 @@ def test_the_vague_priors_of_the_marginals_leave_a_long_map_s_heading_to_the_gra
     graph.update()
     heading_variance = graph.marginals().marginalCovariance(X(steps))[2, 2]
     assert heading_variance == pytest.approx(steps * yaw_sigma**2, rel=1e-3)
+
+
+def test_a_key_the_vague_tier_refuses_is_answered_by_the_steady_one():
+    """A clique refused with the 10 km priors (an almost undetermined landmark beside
+    well-determined ones) is asked again of the graph with 10 m priors, built once, only
+    when needed; a key every tier refuses raises."""
+    built = []
+
+    class Tier:
+        def __init__(self, sigma):
+            self.sigma = sigma
+            built.append(sigma)
+
+        def marginalCovariance(self, key):  # noqa: N802
+            if self.sigma == VAGUE_SIGMA and key == 1 or key == 2:
+                raise RuntimeError("Indeterminate linear system detected")
+            return np.eye(2) * self.sigma
+
+    tiers = TieredMarginals(Tier)
+    assert built == [VAGUE_SIGMA]
+    np.testing.assert_array_equal(tiers.marginalCovariance(0), np.eye(2) * VAGUE_SIGMA)
+    assert built == [VAGUE_SIGMA]
+    np.testing.assert_array_equal(tiers.marginalCovariance(1), np.eye(2) * STEADY_VAGUE_SIGMA)
+    tiers.marginalCovariance(1)
+    assert built == [VAGUE_SIGMA, STEADY_VAGUE_SIGMA]
+    with pytest.raises(RuntimeError):
+        tiers.marginalCovariance(2)
