@@ -168,9 +168,9 @@ class MappingResult:
 
 def _marginal(marginals, keys: int | list[int]) -> FloatArray | None:
     """The marginal covariance of one key, or the joint one of a list of keys (blocks in their
-    order), from :meth:`Graph.marginals`' answer (gtsam's Marginals or a QR Bayes tree); None
-    when the whole graph was refused (``marginals`` None) or this clique (ill-conditioned):
-    the caller falls back."""
+    order), from :meth:`Graph.marginals`' answer (gtsam's Marginals or a QR Bayes tree, in
+    two tiers of vague priors); None when the whole graph was refused (``marginals`` None)
+    or this clique at both tiers (ill-conditioned): the caller falls back."""
     if marginals is None:
         return None
     try:
