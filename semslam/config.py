@@ -382,9 +382,10 @@ class LocalizationConfig(_Section):
         "(the simulator's detector: 3 cm)"
     )
     marking_map_sigma: float = Field(
-        0.05, ge=0, description="m: uncertainty of a map marking's line, for every line (a "
-        "semslam map gives each line its own sigma; using it instead moved NEES out of its "
-        "band on two simulated seeds, BENCHMARKS.md)"
+        0.05, ge=0, description="m: least uncertainty of a map marking's line; a line whose "
+        "own sigma (a semslam map's marginal: the map's drift there) is larger counts with "
+        "that (the own sigma alone, smaller, moved NEES out of its band on two simulated "
+        "seeds, BENCHMARKS.md)"
     )
     marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
     marking_clamp_reach: float = Field(

@@ -203,8 +203,8 @@ class Marking:
 
     ``sigma``: 1-sigma of the line's position across itself, metres, RMS along the segment
     (the mapper's marginal of the line; it holds the map's own drift, as a slot corner's
-    covariance does); None: not known. The localizer does not read it (its configured
-    ``marking_map_sigma`` holds for every line: BENCHMARKS.md, Localizer)."""
+    covariance does); None: not known. The localizer takes it where it exceeds its
+    configured ``marking_map_sigma`` (BENCHMARKS.md, Localizer, "Map lines' own uncertainty")."""
 
     a: FloatArray
     b: FloatArray

@@ -233,7 +233,10 @@ class LocalizerModel:
             painted lines are used without any slot, to this times
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
-        marking_map_sigma: assumed uncertainty of a map line (maps store none), m.
+        marking_map_sigma: least uncertainty of a map line across itself, m; a line's own
+            ``sigma`` (a semslam map's marginal) counts where larger, in its noise and in
+            the floor (``marking_sigma`` then holds ``marking_map_sigma``'s part, which
+            the line's own variance replaces).
         map_heading_radius: the heading variance reported (not the filter's) is at least
             ``map_floor_scale`` times the mean orientation variance of the map's slots whose
             centre lies this near the pose, m (0: as the filter holds it).
@@ -266,7 +269,8 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     """semslam's localizer's use of the measurements (``config.localization``; see
     :mod:`semslam.localization.association` and ``Localizer._floor_to_map``): corner sigma
     floor, map covariance scale, tag range limit, line end points at
-    ``hypot(marking_endpoint_sigma, marking_map_sigma)`` and only as a fallback when
+    ``hypot(marking_endpoint_sigma, marking_map_sigma)`` (a line's own sigma in place of
+    ``marking_map_sigma`` where larger) and only as a fallback when
     ``markings_as_fallback``, the covariance floor at the map's uncertainty, the kinds
     switched off (``use_slots``, ``use_tags``, ``use_markings``) and the slots' separators
     as painted lines (``slot_sides_as_markings``; build the geometry with
@@ -318,6 +322,9 @@ class MapGeometry:
         self.tag_cov = np.array([t.covariance for t in tags], float).reshape(-1, 3, 3)
         markings = semantic_map.markings + (slot_sides(semantic_map) if with_slot_sides else ())
         self.lines = np.array([[m.a, m.b] for m in markings], float).reshape(-1, 2, 2)
+        self.line_sigma = np.array([  # each line's own sigma across itself, m (0: none)
+            m.sigma if m.sigma is not None and math.isfinite(m.sigma) else 0.0
+            for m in markings], float)
 
     @classmethod
     def for_model(cls, semantic_map: SemanticMap, model: LocalizerModel) -> MapGeometry:
@@ -345,7 +352,7 @@ class MapGeometry:
         tags = self._near("tags", self.tags[:, :2], point, tag_reach)
         near.tags, near.tag_cov = self.tags[tags], self.tag_cov[tags]
         pieces = self._near("lines", None, point, view + 0.5 * _LINE_PIECE)
-        near.lines = self.lines[pieces]
+        near.lines, near.line_sigma = self.lines[pieces], self.line_sigma[pieces]
         return near
 
     def heading_variance_near(self, point: FloatArray, radius: float) -> float | None:
@@ -462,8 +469,10 @@ def _frame(
     half = sensors.topview_half_m
     marking_sigma = model.marking_sigma if model.marking_sigma is not None else (
         sensors.marking_sigma)
-    lines = (_lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
-             if model.use_markings else geometry.lines[:0])
+    within = (_lines_within(geometry.lines, pose[:2], half * math.sqrt(2.0))
+              if model.use_markings else np.zeros(len(geometry.lines), bool))
+    lines = geometry.lines[within]
+    line_map_var = np.zeros(0)
     if len(lines):
         ends, keep = clip_segments((lines[:, 0] - pose[:2]) @ R, (lines[:, 1] - pose[:2]) @ R,
                                     -half, half)
@@ -476,7 +485,12 @@ def _frame(
         h = np.concatenate([np.repeat(n[:, None, :], 2, axis=1),
                             _yaw_row(n[:, None, :], R, ends[keep])[..., None]],
                            axis=2).reshape(-1, 3)
-        infos["lines"] = h.T @ h / marking_sigma**2
+        # each line's map part: its own variance where larger than the model's least one
+        line_map_var = np.maximum(geometry.line_sigma[within][keep], model.marking_map_sigma)**2
+        extra = line_map_var - model.marking_map_sigma**2 if model.marking_map_sigma > 0 else (
+            np.zeros(len(line_map_var)))
+        weights = np.repeat(1.0 / (marking_sigma**2 + extra), 2)  # per end point
+        infos["lines"] = (h * weights[:, None]).T @ h
         counts["lines"] = int(keep.sum())
     ps, pt, pm = (sensors.slot_detection_rate, sensors.tag_detection_rate,
                   sensors.marking_detection_rate)
@@ -492,21 +506,24 @@ def _frame(
         if slot_floor is not None and no_slot <= 0.5:
             floor = model.map_floor_scale * slot_floor
         elif only_lines >= 0.5:
-            floor[:2, :2] = model.map_floor_scale * model.marking_map_sigma**2 * np.eye(2)
+            line_var = float(line_map_var.mean()) if len(line_map_var) else (
+                model.marking_map_sigma**2)
+            floor[:2, :2] = model.map_floor_scale * line_var * np.eye(2)
     return _Frame(infos["slots"], infos["tags"], infos["lines"], counts, use_lines, floor)
 
 
-def _lines_within(lines: FloatArray, point: FloatArray, reach: float) -> FloatArray:
-    """The segments (L, 2, 2) that come within ``reach`` of ``point``: the only ones that can
-    cross the square view around it (``reach`` its circumradius). One vectorised test,
-    so a map of thousands of painted lines costs no Python loop over all of them."""
+def _lines_within(lines: FloatArray, point: FloatArray, reach: float) -> np.ndarray:
+    """Which of the segments (L, 2, 2) come within ``reach`` of ``point`` (L,) bool: the
+    only ones that can cross the square view around it (``reach`` its circumradius). One
+    vectorised test, so a map of thousands of painted lines costs no Python loop over all
+    of them."""
     if not len(lines):
-        return lines
+        return np.zeros(0, bool)
     a, d = lines[:, 0], lines[:, 1] - lines[:, 0]
     t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.maximum(
         np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
     gap = a + t[:, None] * d - point
-    return lines[np.einsum("ij,ij->i", gap, gap) <= reach * reach]
+    return np.einsum("ij,ij->i", gap, gap) <= reach * reach
 
 
 def _expected_information(frame: _Frame, sensors: SensorModel) -> FloatArray:

@@ -84,6 +84,7 @@ class Associations:
     slot_observations: list[int] = field(default_factory=list)  # the frame's slot of each
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     unmapped: int = 0  # rejected painted lines seen where the map holds none
+    marking_map_var: float = 0.0  # mean map variance across the associated lines, m^2
     count: int = 0  # associated observations
 
     @property
@@ -124,6 +125,12 @@ class LocalMap:
         self.markings = semantic_map.markings
         if cfg.slot_sides_as_markings:  # separators the slots imply, where no line is mapped
             self.markings = self.markings + slot_sides(semantic_map)
+        # each line's uncertainty across itself: its own (the mapper's marginal, the map's
+        # drift there) where that exceeds the configured one, which stands for what a
+        # line's marginal leaves out (BENCHMARKS.md, Localizer, "Map lines' own uncertainty")
+        self.marking_map_var = np.array([
+            max(cfg.marking_map_sigma, m.sigma if m.sigma is not None and math.isfinite(m.sigma)
+                else 0.0) ** 2 for m in self.markings], dtype=float)
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
         samples, self._marking_owner = sample_segments(
@@ -351,7 +358,7 @@ class LocalMap:
             math.radians(cfg.marking_max_angle_deg)
         )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < self._marking_len[own] + 0.5)
         det, own, n, r = det[keep], own[keep], n[keep], -across[keep]  # r: 0 - across
-        R1 = sigma[det] ** 2 + cfg.marking_map_sigma**2  # (pairs,)
+        R1 = sigma[det] ** 2 + self.marking_map_var[own]  # (pairs,)
         # the residuals' rows [n, n . dR/dyaw e] for both end points
         dE = vE[det] @ np.array([[-s, c], [-c, -s]])  # (pairs, 2, 2): dR/dyaw e
         H = np.empty((len(det), 2, 3))
@@ -389,7 +396,7 @@ class LocalMap:
         end_sigma = np.repeat(sigma[det[w]], 2)  # per end point
         m = MarkingMeasurement.build(
             pose, vE[det[w]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-            np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
+            np.sqrt(end_sigma**2 + self.marking_map_var[k]), margin=2 * end_sigma,
             reach=cfg.marking_clamp_reach,
         )
         # gate again the winners that got clamped rows (the others passed with these rows)
@@ -415,9 +422,10 @@ class LocalMap:
             end_sigma = np.repeat(sigma[det[w[g]]], 2)
             m = MarkingMeasurement.build(
                 pose, vE[det[w[g]]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-                np.sqrt(end_sigma**2 + cfg.marking_map_sigma**2), margin=2 * end_sigma,
+                np.sqrt(end_sigma**2 + self.marking_map_var[k]), margin=2 * end_sigma,
                 reach=cfg.marking_clamp_reach,
             )
+        out.marking_map_var = float(self.marking_map_var[own[w[good]]].mean())
         self._accept(out, "marking", m, observations=len(good))
 
 

@@ -234,9 +234,10 @@ class Localizer:
         """The pose cannot be known better than the map it was measured against: map
         errors are shared by every frame that sees the same landmarks, so they do not
         average out. The position covariance is raised (in the PSD sense) to the mean
-        covariance of the associated slot corners (or, with markings only, the configured
-        marking uncertainty) times ``map_floor_scale``, and the heading variance to the
-        mean orientation variance of the associated slots times the same."""
+        covariance of the associated slot corners (or, with markings only, the mean map
+        variance across the associated lines, ``marking_map_sigma`` squared at least) times
+        ``map_floor_scale``, and the heading variance to the mean orientation variance of
+        the associated slots times the same."""
         slots = assoc.slots
         if self.cfg.map_floor_scale <= 0 or not (slots or "marking" in assoc.kinds):
             return
@@ -244,8 +245,8 @@ class Localizer:
         if slots:  # a frame has a few slots: Python floats beat array calls here
             terms = zip(*(self.local_map.floor_terms[i] for i in slots), strict=True)
             xx, xy, yy, heading = (k * sum(column) / len(slots) for column in terms)
-        else:  # markings only: maps keep no covariance for them, the configured one
-            xx = yy = k * self.cfg.marking_map_sigma**2
+        else:  # markings only: the lines' own map variance (the configured one at least)
+            xx = yy = k * assoc.marking_map_var
             xy = heading = 0.0
         P = self.filter.P
         a, b, c = _positive_part(

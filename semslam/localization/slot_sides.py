@@ -33,12 +33,19 @@ _SAMPLE_M = 1.0  # m between points sampled along the map's lines to find those 
 
 def slot_sides(semantic_map: SemanticMap) -> tuple[Marking, ...]:
     """The separators of ``semantic_map``'s slots that its line markings do not already
-    hold, each once, as :class:`~semslam.types.Marking` (no sigma), in slot order."""
+    hold, each once, as :class:`~semslam.types.Marking` (sigma from the corners), in slot
+    order."""
     if not semantic_map.slots:
         return ()
     corners = np.array([s.corners for s in semantic_map.slots], dtype=float)  # (S, 4, 2)
     sides = np.concatenate([corners[:, [1, 2]], corners[:, [0, 3]]], axis=1).reshape(-1, 2, 2)
+    covs = np.array([s.corner_covariances for s in semantic_map.slots], dtype=float)
+    side_covs = np.concatenate([covs[:, [1, 2]], covs[:, [0, 3]]], axis=1).reshape(-1, 2, 2, 2)
     length = np.hypot(*(sides[:, 1] - sides[:, 0]).T)
+    normal = (sides[:, 1] - sides[:, 0]) @ np.array([[0.0, 1.0], [-1.0, 0.0]]) / np.maximum(
+        length, 1e-9)[:, None]  # (N, 2) unit, across the side
+    across = np.einsum("ni,nkij,nj->nk", normal, side_covs, normal)  # (N, 2 corners), m^2
+    sigma = np.sqrt(np.clip(across, 0.0, None).mean(axis=1))
     keep = length > 1e-6
     middles = sides.mean(axis=1)
     lines = semantic_map.markings
@@ -67,7 +74,8 @@ def slot_sides(semantic_map: SemanticMap) -> tuple[Marking, ...]:
     for i, j in sorted(cKDTree(middles).query_pairs(SAME_LINE_M)):
         if keep[i] and keep[j]:
             keep[j] = False
-    return tuple(Marking(sides[i, 0].copy(), sides[i, 1].copy(), SIDE_WIDTH)
+    return tuple(Marking(sides[i, 0].copy(), sides[i, 1].copy(), SIDE_WIDTH,
+                         float(sigma[i]) if np.isfinite(sigma[i]) else None)
                  for i in np.flatnonzero(keep))
 
 

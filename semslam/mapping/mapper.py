@@ -35,6 +35,7 @@ Everything is in the map frame anchored at the drive's start pose.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import time
 from collections import defaultdict
@@ -179,6 +180,9 @@ def _marginal(marginals, keys: int | list[int]) -> FloatArray | None:
         return np.asarray(marginals.marginalCovariance(keys), dtype=float)
     except RuntimeError:
         return None
+
+
+_SEEN_FROM_REACH = 100  # keyframes (50 m at 0.5 m each) searched either way for a marginal
 
 
 def _pose_spread(poses: FloatArray, centre: FloatArray) -> FloatArray:
@@ -861,11 +865,13 @@ class Mapper:
         for index, label, confidence in self._label_votes:
             readings[self.slots.resolve(index)].append((label, confidence))
         accepted: dict[int, int] = {}
+        seen_from: dict[int, list[int]] = defaultdict(list)  # keyframes of accepted sightings
         for s in self.sightings:
             if s.landmark is None or s.status in (SightingStatus.NULL, SightingStatus.POOLED):
                 continue
             index = self.slots.resolve(s.landmark)
             accepted[index] = accepted.get(index, 0) + 1
+            seen_from[index].append(s.keyframe)
             if s.observation.label is not None:
                 readings[index].append((s.observation.label, s.observation.label_confidence))
         for landmark in self.slots.items:
@@ -887,9 +893,11 @@ class Mapper:
                 joint = slot_covariances.get(landmark.index)
                 if joint is None:
                     joint = _marginal(marginals, keys)
-                if joint is None:  # the corner noise over the accepted observations, counted
+                if joint is None:  # the corner noise over the accepted observations, counted,
+                    # on the map's own uncertainty where the slot was seen from
                     floor = self.cfg.slot_corner_sigma_min
-                    covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1)
+                    covs[:] = np.eye(2) * max(0.05, floor) ** 2 / max(n, 1) + self._seen_from(
+                        marginals, seen_from[landmark.index], landmark.corners.mean(axis=0))
                     self._marginal_fallbacks += 1
                 else:  # blocks in the order of the keys
                     for c in range(4):
@@ -947,6 +955,28 @@ class Mapper:
         markings = self._export_markings(marginals)
         return SemanticMap(tuple(slots), tuple(tags), markings), slot_of_landmark
 
+    def _seen_from(self, marginals, keyframes: list[int], point: FloatArray) -> FloatArray:
+        """(2, 2) position covariance, map frame, of the keyframe among ``keyframes`` nearest
+        ``point``: what a landmark whose own marginal gtsam refused is known no better than,
+        the map's drift where it was seen. Where that keyframe's marginal is refused too
+        (the same ill-conditioned clique), the next nearest of ``keyframes``, then the
+        keyframes before and after it along the drive, up to :data:`_SEEN_FROM_REACH` away;
+        zeros if none answers."""
+        if not keyframes:
+            return np.zeros((2, 2))
+        poses = self.keyframe_poses
+        ranked = sorted(set(keyframes), key=lambda j: math.hypot(*(poses[j][:2] - point)))
+        nearest = ranked[0]
+        along = (nearest + sign * step for step in range(1, _SEEN_FROM_REACH + 1)
+                 for sign in (-1, 1))
+        for k in itertools.chain(ranked, along):
+            if not 0 <= k < len(poses):
+                continue
+            marginal = _marginal(marginals, X(k))
+            if marginal is not None:
+                return rotate_pose_covariance(marginal, poses[k][2])[:2, :2]
+        return np.zeros((2, 2))
+
     def _export_markings(self, marginals) -> tuple[Marking, ...]:
         """Painted lines: the graph's line landmarks with extents re-measured from all their
         detections at the final keyframe poses (:func:`robust_extent`) and their position
@@ -988,7 +1018,11 @@ class Mapper:
                 continue
             sigma = None
             marginal = _marginal(marginals, L(index))
-            if marginal is None:  # as for slots, but a line's sigma is then not known
+            if marginal is None:  # as for slots: the detections' noise, counted, on the map's
+                # own uncertainty where the line was seen from
+                seen = self._seen_from(marginals, [k for k, _, _, _ in detections], 0.5 * (a + b))
+                normal = np.array([-line.direction[1], line.direction[0]])
+                sigma = math.sqrt(self.cfg.marking_sigma**2 / keyframes + normal @ seen @ normal)
                 self._marginal_fallbacks += 1
             else:
                 sigma = across_sigma(marginal, s0, s1)

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from semslam.analysis.accuracy import (
     GRADES,
@@ -144,7 +145,8 @@ def test_the_vectorised_line_clip_and_reach_agree_with_the_scalar_clip():
         assert keep[k] == (want is not None), k
         if want is not None:
             np.testing.assert_allclose(ends[k], np.array(want), atol=1e-12)
-    near = _lines_within(np.stack([a, b], axis=1), np.zeros(2), 5.0 * np.sqrt(2.0))
+    near = np.stack([a, b], axis=1)[_lines_within(np.stack([a, b], axis=1), np.zeros(2),
+                                                  5.0 * np.sqrt(2.0))]
     assert len(near) < len(a)  # some are left out before clipping ...
     visible = {tuple(np.round(np.concatenate([a[k], b[k]]), 9)) for k in np.flatnonzero(keep)}
     assert visible <= {tuple(np.round(s.ravel(), 9)) for s in near}  # ... none in view
@@ -167,7 +169,8 @@ def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_
     starts = rng.uniform(-70, 70, (400, 2))
     ends = starts + rng.uniform(-15, 15, (400, 2))
     ends[:20] = starts[:20]  # points
-    lines = tuple(Marking(a, b, 0.12) for a, b in zip(starts, ends, strict=True))
+    sigmas = [None if k % 3 == 0 else s for k, s in enumerate(rng.uniform(0.0, 0.2, 400))]
+    lines = tuple(Marking(a, b, 0.12, s) for a, b, s in zip(starts, ends, sigmas, strict=True))
     geometry = MapGeometry(SemanticMap(slots=slots, tags=tags, markings=lines))
     seen = {"corners": 0, "tags": 0, "lines": 0}
     localizer = LocalizerModel(fallback_below=2, map_floor_scale=1.0, marking_map_sigma=0.05)
@@ -196,3 +199,25 @@ def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_
     frame = _frame(empty.around(np.zeros(2), SensorModel(), IDEAL), np.zeros(3), SensorModel(),
                    IDEAL)
     assert frame.counts == {"corners": 0, "slots": 0, "tags": 0, "lines": 0}
+
+
+def test_a_map_line_counts_with_its_own_sigma_where_larger_than_the_configured_one():
+    """As the localizer: a line's own sigma replaces ``marking_map_sigma`` where larger, in
+    the line's noise and in the position floor of frames with lines alone."""
+    from semslam.analysis.accuracy import LocalizerModel, _frame
+
+    model = LocalizerModel(marking_sigma=math.hypot(0.03, 0.05), marking_map_sigma=0.05,
+                           map_floor_scale=1.0, use_slots=False, use_tags=False)
+    sensors = SensorModel(marking_detection_rate=1.0)
+    pose = np.zeros(3)
+    frames = {}
+    for own in (None, 0.01, 0.3):
+        line = Marking(np.array([-3.0, 2.0]), np.array([3.0, 2.0]), 0.12, own)
+        frames[own] = _frame(MapGeometry(SemanticMap(markings=(line,))), pose, sensors, model)
+    assert frames[None].counts["lines"] == 1
+    np.testing.assert_allclose(frames[0.01].lines, frames[None].lines)
+    np.testing.assert_allclose(frames[0.01].floor, frames[None].floor)
+    assert frames[None].floor[0, 0] == pytest.approx(0.05**2)
+    ratio = (0.03**2 + 0.05**2) / (0.03**2 + 0.3**2)
+    np.testing.assert_allclose(frames[0.3].lines, ratio * frames[None].lines, atol=1e-12)
+    assert frames[0.3].floor[0, 0] == pytest.approx(0.3**2)

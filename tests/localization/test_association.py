@@ -199,3 +199,19 @@ def test_a_painted_line_in_two_pieces_end_to_end_is_no_rival_to_itself():
     out = LocalMap(SemanticMap(markings=rivals), CFG).associate(seen, car, np.diag(
         [0.09, 0.09, 1e-4]))
     assert out.count == 0 and out.rejected["marking"] == 1
+
+
+def test_a_map_line_is_as_uncertain_as_the_map_says_and_at_least_as_configured():
+    """A line whose own sigma exceeds the configured ``marking_map_sigma`` enters the noise
+    (and the frame's floor) with its own; one surer than that, or with none, with the
+    configured one."""
+    P = np.diag([0.01, 0.01, 1e-4])
+    car = np.array([5.0, 0.0, 0.0])
+    seen = FrameObservations(0.0, markings=(  # 4 m of the line 2 m to the car's left
+        MarkingObservation(np.array([-2.0, 2.0]), np.array([2.0, 2.0]), 0.12, 0.9, 0.02),))
+    for own, expected in ((0.4, 0.4), (0.01, CFG.marking_map_sigma), (None, CFG.marking_map_sigma)):
+        line = Marking(np.array([0.0, 2.0]), np.array([10.0, 2.0]), 0.12, own)
+        out = LocalMap(SemanticMap(markings=(line,)), CFG).associate(seen, car, P)
+        assert out.kinds == ["marking"]
+        np.testing.assert_allclose(np.diag(out.measurements[0].R), 0.02**2 + expected**2)
+        assert out.marking_map_var == pytest.approx(expected**2)

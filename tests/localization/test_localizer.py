@@ -299,3 +299,24 @@ def test_a_map_whose_slot_ids_contradict_every_reading_is_lost_not_tracked(sim):
     assert first < 60 and statuses[first:].count("lost") > 0.95 * len(statuses[first:])
     _, estimates = _run(sim)  # the right map, 20 % of the IDs misread: never
     assert all(e.status != "lost" for e in estimates)
+
+
+def test_the_position_is_never_surer_than_the_painted_lines_it_follows(sim):
+    """Painted lines whose own sigma (the map's drift where they lie) exceeds the configured
+    one floor the position covariance at it in frames the lines alone update."""
+    world = sim.world.to_map()
+    line_sigma = 0.3
+    unsure = dataclasses.replace(world, markings=tuple(
+        dataclasses.replace(m, sigma=line_sigma) for m in world.markings))
+    rec = sim.record
+    cfg = LocalizationConfig(use_slots=False, use_tags=False, slot_sides_as_markings=False)
+    for semantic_map, floored in ((unsure, True), (world, False)):
+        loc = Localizer(semantic_map, cfg, rec.t, rec.odo_speed, rec.odo_yaw_rate,
+                        sim.frame_poses[0])
+        updated = [e for e in (loc.step(f) for f in sim.noisy) if e.associated > 0]
+        assert len(updated) > 0.5 * len(sim.noisy)
+        smallest = np.array([np.linalg.eigvalsh(e.covariance[:2, :2]).min() for e in updated])
+        if floored:
+            assert np.all(smallest >= line_sigma**2 * (1 - 1e-9))
+        else:  # the true map's lines carry no sigma: the configured 5 cm
+            assert np.median(np.sqrt(smallest)) < 0.1

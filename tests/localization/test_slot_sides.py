@@ -42,3 +42,14 @@ def test_a_separator_the_map_already_holds_is_left_out_but_not_for_a_crossing_li
 
 def test_no_slots_no_sides():
     assert slot_sides(SemanticMap()) == ()
+
+
+def test_a_side_is_as_uncertain_across_itself_as_its_corners():
+    # corners 0.04 m uncertain in x (across the row's separators), 0.01 m in y (along them)
+    cov = np.tile(np.diag([0.04**2, 0.01**2]), (4, 1, 1))
+    slots = tuple(Slot(i, None, 0.0, RECTANGLE + (2.5 * i, 0.0), cov, "perpendicular", 5)
+                  for i in range(2))
+    sides = slot_sides(SemanticMap(slots=slots))
+    assert len(sides) == 3
+    for side in sides:
+        assert side.sigma is not None and abs(side.sigma - 0.04) < 1e-12

@@ -75,6 +75,38 @@ def test_a_graph_whose_marginals_gtsam_refuses_still_exports_covariances(small, 
     assert result.statistics["marginal_fallbacks"] >= len(slots) + len(tags)
 
 
+def test_a_landmark_whose_own_marginal_is_refused_is_as_uncertain_as_where_it_was_seen(
+    small, monkeypatch
+):
+    """A slot or painted line whose marginal gtsam refuses at every tier takes its sightings'
+    noise on the position marginal of the keyframe that saw it nearest: about what the graph
+    gives when it answers (the noise alone is several times surer on any drive with drift)."""
+    import gtsam
+
+    import semslam.mapping.mapper as mapper_module
+
+    own = _map(small, small.noisy)
+    answer = mapper_module._marginal
+
+    def refuse_landmarks(marginals, keys):
+        key = keys[0] if isinstance(keys, list) else keys
+        if chr(gtsam.Symbol(key).chr()).upper() in "CL":  # slot corners, painted lines
+            return None
+        return answer(marginals, keys)
+
+    monkeypatch.setattr(mapper_module, "_marginal", refuse_landmarks)
+    refused = _map(small, small.noisy)
+    assert refused.statistics["marginal_fallbacks"] >= len(own.map.slots) + len(
+        own.map.markings)
+    ratios = [np.trace(b.corner_covariances.mean(axis=0)) / np.trace(
+        a.corner_covariances.mean(axis=0)) for a, b in zip(own.map.slots, refused.map.slots,
+                                                           strict=True)]
+    assert min(ratios) > 0.8 and max(ratios) < 4.0
+    sigmas = [b.sigma / a.sigma for a, b in zip(own.map.markings, refused.map.markings,
+                                               strict=True)]
+    assert min(sigmas) > 0.6 and max(sigmas) < 1.5
+
+
 def test_each_slot_carries_the_heading_variance_of_its_corners(small):
     """The joint marginal of a slot's four corners gives its orientation's variance; the
     slots' orientation errors against the truth agree with it."""
