@@ -233,10 +233,11 @@ class LocalizerModel:
             painted lines are used without any slot, to this times
             ``marking_map_sigma^2`` (0: no floor); applied where that case is the more
             likely one (chance >= 0.5).
-        marking_map_sigma: least uncertainty of a map line across itself, m; a line's own
-            ``sigma`` (a semslam map's marginal) counts where larger, in its noise and in
-            the floor (``marking_sigma`` then holds ``marking_map_sigma``'s part, which
-            the line's own variance replaces).
+        marking_map_sigma: least uncertainty of a map line across itself, m (the part of
+            ``marking_sigma`` that is the map's).
+        line_own_sigma: a line's own ``sigma`` (a semslam map's marginal) counts where
+            larger than ``marking_map_sigma``, in its noise and in the floor, as the
+            localizer has it; False: every line as ``marking_sigma`` says.
         map_heading_radius: the heading variance reported (not the filter's) is at least
             ``map_floor_scale`` times the mean orientation variance of the map's slots whose
             centre lies this near the pose, m (0: as the filter holds it).
@@ -254,6 +255,7 @@ class LocalizerModel:
     fallback_below: int = 0
     map_floor_scale: float = 0.0
     marking_map_sigma: float = 0.0
+    line_own_sigma: bool = False
     map_heading_radius: float = 0.0
     use_slots: bool = True
     use_tags: bool = True
@@ -285,6 +287,7 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
         fallback_below=cfg.fallback_below if cfg.markings_as_fallback else 0,
         map_floor_scale=cfg.map_floor_scale,
         marking_map_sigma=cfg.marking_map_sigma,
+        line_own_sigma=True,
         map_heading_radius=cfg.map_heading_radius,
         use_slots=cfg.use_slots,
         use_tags=cfg.use_tags,
@@ -486,9 +489,9 @@ def _frame(
                             _yaw_row(n[:, None, :], R, ends[keep])[..., None]],
                            axis=2).reshape(-1, 3)
         # each line's map part: its own variance where larger than the model's least one
-        line_map_var = np.maximum(geometry.line_sigma[within][keep], model.marking_map_sigma)**2
-        extra = line_map_var - model.marking_map_sigma**2 if model.marking_map_sigma > 0 else (
-            np.zeros(len(line_map_var)))
+        own = geometry.line_sigma[within][keep] if model.line_own_sigma else 0.0
+        line_map_var = np.maximum(own, model.marking_map_sigma) ** 2 * np.ones(int(keep.sum()))
+        extra = line_map_var - model.marking_map_sigma**2
         weights = np.repeat(1.0 / (marking_sigma**2 + extra), 2)  # per end point
         infos["lines"] = (h * weights[:, None]).T @ h
         counts["lines"] = int(keep.sum())

@@ -173,7 +173,8 @@ def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_
     lines = tuple(Marking(a, b, 0.12, s) for a, b, s in zip(starts, ends, sigmas, strict=True))
     geometry = MapGeometry(SemanticMap(slots=slots, tags=tags, markings=lines))
     seen = {"corners": 0, "tags": 0, "lines": 0}
-    localizer = LocalizerModel(fallback_below=2, map_floor_scale=1.0, marking_map_sigma=0.05)
+    localizer = LocalizerModel(fallback_below=2, map_floor_scale=1.0, marking_map_sigma=0.05,
+                               line_own_sigma=True)
     models = (IDEAL, replace(IDEAL, tag_range_limit=8.0), localizer)
     for rule in ("corners", "entrance"):
         sensors = SensorModel(slot_rule=rule)
@@ -204,10 +205,13 @@ def test_the_landmarks_around_a_place_give_every_frame_there_what_the_whole_map_
 def test_a_map_line_counts_with_its_own_sigma_where_larger_than_the_configured_one():
     """As the localizer: a line's own sigma replaces ``marking_map_sigma`` where larger, in
     the line's noise and in the position floor of frames with lines alone."""
+    from dataclasses import replace
+
     from semslam.analysis.accuracy import LocalizerModel, _frame
 
     model = LocalizerModel(marking_sigma=math.hypot(0.03, 0.05), marking_map_sigma=0.05,
-                           map_floor_scale=1.0, use_slots=False, use_tags=False)
+                           line_own_sigma=True, map_floor_scale=1.0, use_slots=False,
+                           use_tags=False)
     sensors = SensorModel(marking_detection_rate=1.0)
     pose = np.zeros(3)
     frames = {}
@@ -221,3 +225,6 @@ def test_a_map_line_counts_with_its_own_sigma_where_larger_than_the_configured_o
     ratio = (0.03**2 + 0.05**2) / (0.03**2 + 0.3**2)
     np.testing.assert_allclose(frames[0.3].lines, ratio * frames[None].lines, atol=1e-12)
     assert frames[0.3].floor[0, 0] == pytest.approx(0.3**2)
+    ideal = _frame(MapGeometry(SemanticMap(markings=(line,))), pose, sensors,
+                   replace(model, line_own_sigma=False))  # every line as marking_sigma says
+    np.testing.assert_allclose(ideal.lines, frames[None].lines)
