@@ -383,9 +383,9 @@ class LocalizationConfig(_Section):
     )
     marking_map_sigma: float = Field(
         0.05, ge=0, description="m: least uncertainty of a map marking's line; a line whose "
-        "own sigma (a semslam map's marginal: the map's drift there) is larger counts with "
-        "that (the own sigma alone, smaller, moved NEES out of its band on two simulated "
-        "seeds, BENCHMARKS.md)"
+        "own uncertainty where it is seen (a semslam map's marginal: the map's drift there) "
+        "is larger counts with that (the own sigma alone, smaller, moved NEES out of its "
+        "band on two simulated seeds, BENCHMARKS.md)"
     )
     marking_min_length: float = Field(0.5, gt=0, description="shorter detections are ignored, m")
     marking_clamp_reach: float = Field(

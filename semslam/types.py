@@ -204,12 +204,20 @@ class Marking:
     ``sigma``: 1-sigma of the line's position across itself, metres, RMS along the segment
     (the mapper's marginal of the line; it holds the map's own drift, as a slot corner's
     covariance does); None: not known. The localizer takes it where it exceeds its
-    configured ``marking_map_sigma`` (BENCHMARKS.md, Localizer, "Map lines' own uncertainty")."""
+    configured ``marking_map_sigma`` (BENCHMARKS.md, Localizer, "Map lines' own uncertainty").
+
+    ``across_covariance``: (2, 2) covariance, m^2, of the line's offsets across itself at
+    ``a`` and at ``b``. A line's error is a shift and a turn, so its offset at the point a
+    share ``lam`` of the way from ``a`` to ``b`` is ``(1 - lam) e_a + lam e_b``, and its
+    variance there follows from this matrix alone (:func:`across_variance`); a long line
+    is surer in its middle or at one end than at the other. ``sigma`` squared is that
+    variance's mean along the segment. None: only ``sigma`` is known (the same everywhere)."""
 
     a: FloatArray
     b: FloatArray
     width: float
     sigma: float | None = None
+    across_covariance: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from semslam.errors import ConfigError
 from semslam.geometry import FloatArray, clip_segments, rotation, segment_pieces
+from semslam.line_uncertainty import across_variance, end_covariances
 from semslam.localization.measurements import point_jacobian
 from semslam.localization.slot_sides import slot_sides
 from semslam.types import SemanticMap
@@ -235,8 +236,9 @@ class LocalizerModel:
             likely one (chance >= 0.5).
         marking_map_sigma: least uncertainty of a map line across itself, m (the part of
             ``marking_sigma`` that is the map's).
-        line_own_sigma: a line's own ``sigma`` (a semslam map's marginal) counts where
-            larger than ``marking_map_sigma``, in its noise and in the floor, as the
+        line_own_sigma: a line's own variance where each visible end falls on it (a
+            semslam map's marginal, :mod:`semslam.line_uncertainty`) counts where larger
+            than ``marking_map_sigma`` squared, in its noise and in the floor, as the
             localizer has it; False: every line as ``marking_sigma`` says.
         map_heading_radius: the heading variance reported (not the filter's) is at least
             ``map_floor_scale`` times the mean orientation variance of the map's slots whose
@@ -271,9 +273,9 @@ def localizer_model(cfg: LocalizationConfig) -> LocalizerModel:
     """semslam's localizer's use of the measurements (``config.localization``; see
     :mod:`semslam.localization.association` and ``Localizer._floor_to_map``): corner sigma
     floor, map covariance scale, tag range limit, line end points at
-    ``hypot(marking_endpoint_sigma, marking_map_sigma)`` (a line's own sigma in place of
-    ``marking_map_sigma`` where larger) and only as a fallback when
-    ``markings_as_fallback``, the covariance floor at the map's uncertainty, the kinds
+    ``hypot(marking_endpoint_sigma, marking_map_sigma)`` (a line's own uncertainty where the
+    end point falls on it in place of ``marking_map_sigma`` where larger) and only as a
+    fallback when ``markings_as_fallback``, the covariance floor at the map's uncertainty, the kinds
     switched off (``use_slots``, ``use_tags``, ``use_markings``) and the slots' separators
     as painted lines (``slot_sides_as_markings``; build the geometry with
     :meth:`MapGeometry.for_model`), and the heading it reports raised to the map's slots'
@@ -325,9 +327,8 @@ class MapGeometry:
         self.tag_cov = np.array([t.covariance for t in tags], float).reshape(-1, 3, 3)
         markings = semantic_map.markings + (slot_sides(semantic_map) if with_slot_sides else ())
         self.lines = np.array([[m.a, m.b] for m in markings], float).reshape(-1, 2, 2)
-        self.line_sigma = np.array([  # each line's own sigma across itself, m (0: none)
-            m.sigma if m.sigma is not None and math.isfinite(m.sigma) else 0.0
-            for m in markings], float)
+        # each line's own uncertainty across itself at its ends, m^2 (zeros: none known)
+        self.line_end_cov = end_covariances(markings).reshape(-1, 2, 2)
 
     @classmethod
     def for_model(cls, semantic_map: SemanticMap, model: LocalizerModel) -> MapGeometry:
@@ -355,7 +356,7 @@ class MapGeometry:
         tags = self._near("tags", self.tags[:, :2], point, tag_reach)
         near.tags, near.tag_cov = self.tags[tags], self.tag_cov[tags]
         pieces = self._near("lines", None, point, view + 0.5 * _LINE_PIECE)
-        near.lines, near.line_sigma = self.lines[pieces], self.line_sigma[pieces]
+        near.lines, near.line_end_cov = self.lines[pieces], self.line_end_cov[pieces]
         return near
 
     def heading_variance_near(self, point: FloatArray, radius: float) -> float | None:
@@ -488,11 +489,17 @@ def _frame(
         h = np.concatenate([np.repeat(n[:, None, :], 2, axis=1),
                             _yaw_row(n[:, None, :], R, ends[keep])[..., None]],
                            axis=2).reshape(-1, 3)
-        # each line's map part: its own variance where larger than the model's least one
-        own = geometry.line_sigma[within][keep] if model.line_own_sigma else 0.0
-        line_map_var = np.maximum(own, model.marking_map_sigma) ** 2 * np.ones(int(keep.sum()))
+        # each line's map part: its own variance where each visible end falls on it, where
+        # larger than the model's least one (the localizer's LocalMap.marking_map_var)
+        own = np.zeros((int(keep.sum()), 2))
+        if model.line_own_sigma:
+            a_v = (lines[keep, 0] - pose[:2]) @ R
+            lam = ((ends[keep] - a_v[:, None, :]) @ ((d[keep] @ R) / length[keep, None] ** 2)[
+                :, :, None])[..., 0]  # (K, 2 ends): share of the way from a to b
+            own = across_variance(geometry.line_end_cov[within][keep][:, None], lam)
+        line_map_var = np.maximum(own, model.marking_map_sigma**2)  # (K, 2 ends)
         extra = line_map_var - model.marking_map_sigma**2
-        weights = np.repeat(1.0 / (marking_sigma**2 + extra), 2)  # per end point
+        weights = (1.0 / (marking_sigma**2 + extra)).reshape(-1)  # per end point
         infos["lines"] = (h * weights[:, None]).T @ h
         counts["lines"] = int(keep.sum())
     ps, pt, pm = (sensors.slot_detection_rate, sensors.tag_detection_rate,

@@ -9,7 +9,8 @@ Layout (map frame, metres and radians)::
                 "corner_covariances" [4][2][2], "kind", "observations",
                 optional "heading_variance" (rad^2)}],
      "tags": [{"family", "id", "size", "x", "y", "yaw", "height", "covariance" [3][3]}],
-     "markings": [{"a" [2], "b" [2], "width", optional "sigma" (m)}]}
+     "markings": [{"a" [2], "b" [2], "width", optional "sigma" (m), optional
+                   "across_covariance" [2][2] (m^2, the offsets at a and b)}]}
 
 Every load checks, in order: JSON syntax, finite numbers, the format
 string, the version, the schema, unique slot IDs, then the values: every
@@ -212,6 +213,8 @@ def _marking_to_dict(marking: Marking) -> dict[str, Any]:
         "b": np.asarray(marking.b, dtype=float).tolist(),
         "width": float(marking.width),
         **({} if marking.sigma is None else {"sigma": float(marking.sigma)}),
+        **({} if marking.across_covariance is None else {
+            "across_covariance": np.asarray(marking.across_covariance, dtype=float).tolist()}),
     }
 
 
@@ -220,4 +223,9 @@ def _marking_from_field(f: Field) -> Marking:
     if np.array_equal(a, b):
         f.fail("zero-length marking (a and b are the same point)")
     sigma = None if (v := f.get("sigma")) is None else v.number(0.0, MAX_COORDINATE)
-    return Marking(a=a, b=b, width=f["width"].number(positive=True), sigma=sigma)
+    across = None
+    if (v := f.get("across_covariance")) is not None:
+        across = v.array((2, 2))
+        check_covariance(v, across, MAX_VARIANCE)
+    return Marking(a=a, b=b, width=f["width"].number(positive=True), sigma=sigma,
+                   across_covariance=across)

@@ -34,6 +34,7 @@ from semslam.chi2 import chi2_quantile
 from semslam.config import LocalizationConfig
 from semslam.evaluation.segments import nearest_segments, sample_segments
 from semslam.geometry import FloatArray, rotate_pose_covariance
+from semslam.line_uncertainty import across_variance, end_covariances
 from semslam.localization.filter import solve_spd
 from semslam.localization.measurements import (
     MarkingMeasurement,
@@ -84,7 +85,7 @@ class Associations:
     slot_observations: list[int] = field(default_factory=list)  # the frame's slot of each
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     unmapped: int = 0  # rejected painted lines seen where the map holds none
-    marking_map_var: float = 0.0  # mean map variance across the associated lines, m^2
+    marking_map_var: float = 0.0  # mean map variance across the lines where used, m^2
     count: int = 0  # associated observations
 
     @property
@@ -125,12 +126,8 @@ class LocalMap:
         self.markings = semantic_map.markings
         if cfg.slot_sides_as_markings:  # separators the slots imply, where no line is mapped
             self.markings = self.markings + slot_sides(semantic_map)
-        # each line's uncertainty across itself: its own (the mapper's marginal, the map's
-        # drift there) where that exceeds the configured one, which stands for what a
-        # line's marginal leaves out (BENCHMARKS.md, Localizer, "Map lines' own uncertainty")
-        self.marking_map_var = np.array([
-            max(cfg.marking_map_sigma, m.sigma if m.sigma is not None and math.isfinite(m.sigma)
-                else 0.0) ** 2 for m in self.markings], dtype=float)
+        # each line's uncertainty across itself where it is seen (:meth:`marking_map_var`)
+        self.marking_end_cov = end_covariances(self.markings)  # (M, 2, 2) m^2, at a and b
         self.marking_a = np.array([m.a for m in self.markings]).reshape(-1, 2)
         self.marking_b = np.array([m.b for m in self.markings]).reshape(-1, 2)
         samples, self._marking_owner = sample_segments(
@@ -148,6 +145,15 @@ class LocalMap:
         self._slot_gate = chi2_quantile(cfg.slot_gate, 8)
         self._tag_gate = chi2_quantile(cfg.tag_gate, 3)
         self._marking_gates = {n: chi2_quantile(cfg.marking_gate, n) for n in range(1, 5)}
+
+    def marking_map_var(self, lines: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Variance across map lines ``lines`` (index array) at shares ``lam`` of the way
+        from their ``a`` to their ``b`` (broadcast against ``lines``), m^2: the line's own
+        there (the mapper's marginal, the map's drift; :mod:`semslam.line_uncertainty`) where
+        that exceeds ``marking_map_sigma`` squared, which stands for what a line's marginal
+        leaves out (BENCHMARKS.md, Localizer, "Map lines' own uncertainty")."""
+        own = across_variance(self.marking_end_cov[lines], lam)
+        return np.maximum(own, self.cfg.marking_map_sigma**2)
 
     # ------------------------------------------------------------------ frame
     def heading_variance_near(self, xy: FloatArray, radius: float) -> float | None:
@@ -358,13 +364,18 @@ class LocalMap:
             math.radians(cfg.marking_max_angle_deg)
         )) & (along.max(axis=1) > -0.5) & (along.min(axis=1) < self._marking_len[own] + 0.5)
         det, own, n, r = det[keep], own[keep], n[keep], -across[keep]  # r: 0 - across
-        R1 = sigma[det] ** 2 + self.marking_map_var[own]  # (pairs,)
+        # the map line's variance where each end point falls on it
+        map_var = self.marking_map_var(
+            own[:, None], along[keep] / np.maximum(self._marking_len[own], 1e-9)[:, None])
+        R2 = sigma[det, None] ** 2 + map_var  # (pairs, 2 ends)
         # the residuals' rows [n, n . dR/dyaw e] for both end points
         dE = vE[det] @ np.array([[-s, c], [-c, -s]])  # (pairs, 2, 2): dR/dyaw e
         H = np.empty((len(det), 2, 3))
         H[..., :2] = n[:, None, :]
         H[..., 2] = (dE @ n[:, :, None])[..., 0]
-        S = H @ P @ H.transpose(0, 2, 1) + np.eye(2) * R1[:, None, None]
+        S = H @ P @ H.transpose(0, 2, 1)
+        S[:, 0, 0] += R2[:, 0]
+        S[:, 1, 1] += R2[:, 1]
         det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
         d2 = (S[:, 1, 1] * r[:, 0] ** 2 - 2 * S[:, 0, 1] * r[:, 0] * r[:, 1]
               + S[:, 0, 0] * r[:, 1] ** 2) / det_S
@@ -372,7 +383,7 @@ class LocalMap:
             out.rejected["marking"] += len(vE)
             return
         order = np.lexsort((d2, det))
-        det, own, d2 = det[order], own[order], d2[order]
+        det, own, d2, map_var = det[order], own[order], d2[order], map_var[order]
         starts = np.flatnonzero(np.r_[True, det[1:] != det[:-1]])
         first = starts.tolist()
         # a candidate that is the best one's own painted line, in another piece, is no rival
@@ -396,7 +407,7 @@ class LocalMap:
         end_sigma = np.repeat(sigma[det[w]], 2)  # per end point
         m = MarkingMeasurement.build(
             pose, vE[det[w]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-            np.sqrt(end_sigma**2 + self.marking_map_var[k]), margin=2 * end_sigma,
+            np.sqrt(end_sigma**2 + map_var[w].reshape(-1)), margin=2 * end_sigma,
             reach=cfg.marking_clamp_reach,
         )
         # gate again the winners that got clamped rows (the others passed with these rows)
@@ -422,10 +433,10 @@ class LocalMap:
             end_sigma = np.repeat(sigma[det[w[g]]], 2)
             m = MarkingMeasurement.build(
                 pose, vE[det[w[g]]].reshape(-1, 2), self.marking_a[k], self.marking_b[k],
-                np.sqrt(end_sigma**2 + self.marking_map_var[k]), margin=2 * end_sigma,
+                np.sqrt(end_sigma**2 + map_var[w[g]].reshape(-1)), margin=2 * end_sigma,
                 reach=cfg.marking_clamp_reach,
             )
-        out.marking_map_var = float(self.marking_map_var[own[w[good]]].mean())
+        out.marking_map_var = float(map_var[w[good]].mean())
         self._accept(out, "marking", m, observations=len(good))
 
 

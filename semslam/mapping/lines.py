@@ -80,6 +80,17 @@ def across_sigma(covariance: FloatArray, s0: float, s1: float) -> float:
     return math.sqrt(max(0.0, mean_s2 * S[0, 0] - 2.0 * mean_s * S[0, 1] + S[1, 1]))
 
 
+def end_covariance(covariance: FloatArray, s0: float, s1: float) -> FloatArray:
+    """(2, 2) covariance (m^2) of a line's offsets across itself at ``s = s0`` and ``s = s1``
+    (its two ends, m along the line from its foot point), given the 2x2 covariance of its
+    variable ``(theta, d)``: each offset has the Jacobian ``[s, -1]`` (see
+    :func:`across_sigma`, whose square is this matrix's variance averaged along the
+    segment)."""
+    J = np.array([[s0, -1.0], [s1, -1.0]])
+    C = J @ np.asarray(covariance, dtype=float) @ J.T
+    return 0.5 * (C + C.T)
+
+
 _CELL = 4.0  # m, side of a grid cell of LineLandmarks (10 m: association 10 % slower, same map)
 
 

@@ -75,7 +75,7 @@ from semslam.mapping.landmarks import (
     label_probability,
     mean_corner_distance,
 )
-from semslam.mapping.lines import LineLandmarks, across_sigma
+from semslam.mapping.lines import LineLandmarks, across_sigma, end_covariance
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations, robust_extent
 from semslam.mapping.maxmix import (
@@ -980,7 +980,8 @@ class Mapper:
     def _export_markings(self, marginals) -> tuple[Marking, ...]:
         """Painted lines: the graph's line landmarks with extents re-measured from all their
         detections at the final keyframe poses (:func:`robust_extent`) and their position
-        uncertainty from the line's marginal (:func:`across_sigma`), or, without a graph,
+        uncertainty from the line's marginal (:func:`across_sigma`, and at its two ends
+        :func:`end_covariance`), or, without a graph,
         the detections placed by odometry and merged (no uncertainty)."""
         poses = self.keyframe_poses
         if not self.use_graph:
@@ -1016,7 +1017,7 @@ class Mapper:
             b = line.foot() + s1 * line.direction
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
-            sigma = None
+            sigma, ends = None, None
             marginal = _marginal(marginals, L(index))
             if marginal is None:  # as for slots: the detections' noise, counted, on the map's
                 # own uncertainty where the line was seen from
@@ -1025,7 +1026,7 @@ class Mapper:
                 sigma = math.sqrt(self.cfg.marking_sigma**2 / keyframes + normal @ seen @ normal)
                 self._marginal_fallbacks += 1
             else:
-                sigma = across_sigma(marginal, s0, s1)
+                sigma, ends = across_sigma(marginal, s0, s1), end_covariance(marginal, s0, s1)
             width = float(np.median([w for _, _, w, _ in detections]))
-            out.append(Marking(a, b, width, sigma))
+            out.append(Marking(a, b, width, sigma, ends))
         return tuple(out)

@@ -228,3 +228,23 @@ def test_a_map_line_counts_with_its_own_sigma_where_larger_than_the_configured_o
     ideal = _frame(MapGeometry(SemanticMap(markings=(line,))), pose, sensors,
                    replace(model, line_own_sigma=False))  # every line as marking_sigma says
     np.testing.assert_allclose(ideal.lines, frames[None].lines)
+
+
+def test_a_map_line_counts_with_its_own_variance_where_each_end_point_falls_on_it():
+    """A line surer at one end than the other (its ``across_covariance``): each visible end
+    point weighs with the line's variance there, as the localizer's do, and the floor of a
+    frame with lines alone is their mean."""
+    from semslam.analysis.accuracy import LocalizerModel, _frame
+
+    model = LocalizerModel(marking_sigma=math.hypot(0.03, 0.05), marking_map_sigma=0.05,
+                           line_own_sigma=True, map_floor_scale=1.0, use_slots=False,
+                           use_tags=False)
+    sensors = SensorModel(marking_detection_rate=1.0)
+    ends = np.diag([0.2**2, 0.4**2])
+    line = Marking(np.array([-4.0, 2.0]), np.array([4.0, 2.0]), 0.12, 0.3, ends)
+    frame = _frame(MapGeometry(SemanticMap(markings=(line,))), np.zeros(3), sensors, model)
+    h_a, h_b = np.array([0.0, 1.0, -4.0]), np.array([0.0, 1.0, 4.0])  # d(across)/d(x, y, yaw)
+    w_a, w_b = (1.0 / (0.03**2 + v) for v in (0.2**2, 0.4**2))
+    np.testing.assert_allclose(frame.lines, w_a * np.outer(h_a, h_a) + w_b * np.outer(h_b, h_b),
+                               rtol=1e-9)
+    assert frame.floor[0, 0] == pytest.approx(0.5 * (0.2**2 + 0.4**2))

@@ -229,6 +229,31 @@ def test_a_marking_sigma_round_trips_and_may_be_absent(tmp_path: Path) -> None:
         assert "\n" not in str(err.value)
 
 
+def test_a_marking_across_covariance_round_trips_and_a_broken_one_is_refused(
+    tmp_path: Path,
+) -> None:
+    import dataclasses
+
+    original = make_map()
+    plain = original.markings[0]
+    assert plain.across_covariance is None
+    ends = np.array([[0.01, 0.004], [0.004, 0.25]])
+    known = dataclasses.replace(plain, sigma=0.3, across_covariance=ends)
+    save_map(tmp_path / "map.json", dataclasses.replace(original, markings=(known, plain)))
+    document = json.loads((tmp_path / "map.json").read_text())
+    assert "across_covariance" not in document["markings"][1]
+    jsonschema.validate(document, load_schema("map"))
+    loaded = load_map(tmp_path / "map.json")
+    np.testing.assert_array_equal(loaded.markings[0].across_covariance, ends)
+    assert loaded.markings[1].across_covariance is None
+    for bad in ([[0.01, 0.2], [0.2, 0.25]], [[0.01, 0.0], [0.001, 0.25]], [[0.01], [0.2]]):
+        document["markings"][0]["across_covariance"] = bad
+        _write(tmp_path / "bad.json", document)
+        with pytest.raises(MapError, match="markings/0/across_covariance") as err:
+            load_map(tmp_path / "bad.json")
+        assert "\n" not in str(err.value)
+
+
 def _paths(node, prefix=()):
     """Every (path, value) in a JSON document, containers included."""
     yield prefix, node

@@ -215,3 +215,28 @@ def test_a_map_line_is_as_uncertain_as_the_map_says_and_at_least_as_configured()
         assert out.kinds == ["marking"]
         np.testing.assert_allclose(np.diag(out.measurements[0].R), 0.02**2 + expected**2)
         assert out.marking_map_var == pytest.approx(expected**2)
+
+
+def test_a_map_line_is_as_uncertain_where_it_is_seen_as_the_map_says_there():
+    """A long line the map holds surely at ``a`` (2 cm) and loosely at ``b`` (0.6 m): end
+    points seen near ``a`` enter with the configured floor, near ``b`` with about 0.6 m,
+    in the middle with the variance its end covariance gives there; its RMS ``sigma``
+    alone (the same everywhere) would give every end point the same."""
+    P = np.diag([0.01, 0.01, 1e-4])
+    ends = np.array([[0.02**2, 0.0], [0.0, 0.6**2]])  # offsets at a and b independent
+    line = Marking(np.array([0.0, 2.0]), np.array([100.0, 2.0]), 0.12, 0.35, ends)
+    local = LocalMap(SemanticMap(markings=(line,)), CFG)
+    seen = FrameObservations(0.0, markings=(  # 4 m of the line 2 m to the car's left
+        MarkingObservation(np.array([-2.0, 2.0]), np.array([2.0, 2.0]), 0.12, 0.9, 0.02),))
+    variances = {}
+    for x in (3.0, 50.0, 97.0):
+        out = local.associate(seen, np.array([x, 0.0, 0.0]), P)
+        assert out.kinds == ["marking"]
+        variances[x] = np.diag(out.measurements[0].R) - 0.02**2
+        lam = (np.array([x - 2.0, x + 2.0])) / 100.0
+        own = (1 - lam) ** 2 * ends[0, 0] + lam**2 * ends[1, 1]
+        np.testing.assert_allclose(variances[x], np.maximum(own, CFG.marking_map_sigma**2))
+        assert out.marking_map_var == pytest.approx(variances[x].mean())
+    assert variances[3.0] == pytest.approx(CFG.marking_map_sigma**2)
+    assert variances[97.0] == pytest.approx(0.6**2, rel=0.1)
+    assert variances[50.0].mean() < 0.35**2 < variances[97.0].mean()

@@ -315,8 +315,19 @@ def test_mapped_lines_carry_the_uncertainty_of_their_position(small):
     ends = np.array([[m.a, m.b] for m in mapped]).reshape(-1, 2)
     off = _distance_to_segments(ends, small.world.to_map().markings)
     assert 0.5 < np.sqrt(np.mean(off**2) / np.mean(sigma**2)) < 2.0
+    # and at its two ends: the mean along the segment of (1 - t)^2 C_aa + 2 t (1 - t) C_ab
+    # + t^2 C_bb, (C_aa + C_ab + C_bb) / 3, is sigma squared
+    for m in mapped:
+        C = m.across_covariance
+        assert C.shape == (2, 2)
+        assert (C[0, 0] + C[0, 1] + C[1, 1]) / 3.0 == pytest.approx(m.sigma**2, rel=1e-9)
+    off_a, off_b = _distance_to_segments(ends[0::2], small.world.to_map().markings), \
+        _distance_to_segments(ends[1::2], small.world.to_map().markings)
+    var_a = np.array([m.across_covariance[0, 0] for m in mapped])
+    var_b = np.array([m.across_covariance[1, 1] for m in mapped])
+    assert 0.5 < np.sqrt(np.mean(np.r_[off_a, off_b] ** 2) / np.mean(np.r_[var_a, var_b])) < 2.0
     dead = _map(small, small.noisy, optimizer="none").map.markings
-    assert all(m.sigma is None for m in dead)
+    assert all(m.sigma is None and m.across_covariance is None for m in dead)
 
 
 @pytest.mark.parametrize("optimizer", ["none", "isam2"])
