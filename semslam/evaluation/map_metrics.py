@@ -21,7 +21,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from semslam.evaluation.alignment import apply_se2, fit_se2, transform_map
-from semslam.evaluation.segments import nearest_segments
+from semslam.evaluation.segments import nearest_segments, sample_segments
 from semslam.geometry import FloatArray, compose, inverse, wrap_angle
 from semslam.types import SemanticMap, Tag
 
@@ -31,6 +31,8 @@ REVERSED_ORDER = (2, 3, 0, 1)  # the same slot seen from its rear: entrance and 
 REVERSED_FACTOR = 0.5  # the reversed order counts when its mean corner distance is below half
 ICP_ITERATIONS = 20
 CONFIDENT_LABEL = 0.9  # label_confidence from which a mapped ID counts as confident
+MARKING_MATCH_M = 1.0  # m: a mapped line's middle lies at most this far across its true line
+MARKING_PARALLEL_DEG = 10.0  # deg: and the two are within this of parallel
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,15 @@ class MapMetrics:
         marking_endpoint_median_m: median over the end points of every mapped
             marking of the distance to the nearest true marking segment.
         marking_endpoint_p95_m: 95th percentile of those distances.
+        marking_nees_mean: does the map know its lines' error: over the mapped lines that
+            carry an ``across_covariance``, the mean of ``e^T C^-1 e``, ``e`` the offsets of
+            the line's two ends across the true line it stands for (of the true lines
+            within :data:`MARKING_PARALLEL_DEG` of parallel that pass near its middle, the
+            one its middle lies nearest across, at most :data:`MARKING_MATCH_M`; a map
+            line further off than that is not counted), ``C`` that covariance; 2 for a map
+            that knows its lines' error (two degrees of freedom), larger if too sure.
+        marking_nees_median: median of the same (1.39 if right).
+        marking_nees_lines: how many lines they were computed over.
         alignment_skipped: why no alignment was applied though one was asked for (fewer
             than two distinct matched points); None otherwise.
     """
@@ -138,6 +149,9 @@ class MapMetrics:
     markings_mapped: int
     marking_endpoint_median_m: float
     marking_endpoint_p95_m: float
+    marking_nees_mean: float
+    marking_nees_median: float
+    marking_nees_lines: int
     alignment_skipped: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
@@ -519,12 +533,52 @@ def _marking_metrics(estimate: SemanticMap, truth: SemanticMap) -> dict[str, Any
         a = np.array([m.a for m in truth.markings], dtype=float)
         b = np.array([m.b for m in truth.markings], dtype=float)
         dist = point_segment_distances(ends, a, b)
+    nees = _marking_nees(estimate, truth)
     return {
         "markings_true": len(truth.markings),
         "markings_mapped": len(estimate.markings),
         "marking_endpoint_median_m": _percentile(dist, 50.0),
         "marking_endpoint_p95_m": _percentile(dist, 95.0),
+        "marking_nees_mean": float(nees.mean()) if nees.size else math.nan,
+        "marking_nees_median": float(np.median(nees)) if nees.size else math.nan,
+        "marking_nees_lines": int(nees.size),
     }
+
+
+def _marking_nees(estimate: SemanticMap, truth: SemanticMap) -> FloatArray:
+    """``e^T C^-1 e`` of each mapped line with an ``across_covariance`` ``C`` that has a true
+    line to stand for (see :class:`MapMetrics`), ``e`` its ends' offsets across that line."""
+    lines = [m for m in estimate.markings if m.across_covariance is not None]
+    if not lines or not truth.markings:
+        return np.zeros(0)
+    a = np.array([m.a for m in truth.markings], dtype=float)
+    b = np.array([m.b for m in truth.markings], dtype=float)
+    u = (b - a) / np.maximum(np.hypot(*(b - a).T), 1e-12)[:, None]
+    n = u @ np.array([[0.0, 1.0], [-1.0, 0.0]])  # (T, 2): (-u_y, u_x)
+    samples, owner = sample_segments(a, b, MARKING_MATCH_M)
+    tree = cKDTree(samples)
+    ends = np.array([[m.a, m.b] for m in lines], dtype=float)  # (L, 2, 2)
+    own_u = ends[:, 1] - ends[:, 0]
+    own_u /= np.maximum(np.hypot(*own_u.T), 1e-12)[:, None]
+    near = tree.query_ball_point(ends.mean(axis=1), 1.5 * MARKING_MATCH_M)
+    sin_parallel = math.sin(math.radians(MARKING_PARALLEL_DEG))
+    out = []
+    for i, found in enumerate(near):
+        candidates = np.unique(owner[np.asarray(found, dtype=np.intp)])
+        candidates = candidates[np.abs(n[candidates] @ own_u[i]) < sin_parallel]
+        if not len(candidates):
+            continue
+        offsets = (ends[i][None] - a[candidates][:, None]) @ n[candidates][..., None]  # (C, 2, 1)
+        middle = np.abs(offsets[:, :, 0].mean(axis=1))
+        j = int(np.argmin(middle))
+        if middle[j] > MARKING_MATCH_M:
+            continue
+        e = offsets[j, :, 0]
+        C = np.asarray(lines[i].across_covariance, dtype=float)
+        if np.linalg.det(C) <= 0.0:
+            continue  # no spread to measure against
+        out.append(float(e @ np.linalg.solve(C, e)))
+    return np.array(out)
 
 
 def _min_cost_assignment(cost: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:

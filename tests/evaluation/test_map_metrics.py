@@ -304,6 +304,37 @@ def test_marking_end_point_distances():
     assert m.marking_endpoint_p95_m == pytest.approx(np.percentile(dist, 95))
 
 
+def test_marking_nees_measures_each_lines_end_offsets_against_its_covariance():
+    """Each mapped line with an ``across_covariance`` C: its ends' offsets e across the
+    nearest parallel true line, e^T C^-1 e; lines without C, turned across every true line
+    or further off than MARKING_MATCH_M are not counted."""
+    from semslam.evaluation.map_metrics import MARKING_MATCH_M
+
+    def mk(a, b, cov=None):
+        return Marking(np.array(a, dtype=float), np.array(b, dtype=float), 0.15, None,
+                       None if cov is None else np.array(cov, dtype=float))
+
+    C1 = [[0.01, 0.002], [0.002, 0.04]]
+    C2 = [[0.09, 0.0], [0.0, 0.09]]
+    true = SemanticMap(markings=(mk([0, 0], [20, 0]), mk([0, 3], [20, 3]), mk([30, 0], [30, 20])))
+    mapped = SemanticMap(markings=(
+        mk([2, 0.1], [18, -0.3], C1),  # the first line, ends +0.1 / -0.3 across it
+        mk([0, 2.9], [20, 3.2], C2),  # the second (the first lies 2.9 m off: not it)
+        mk([1, 1.5], [19, 1.5]),  # no covariance: not counted
+        mk([30.4, 2], [30.4, 18], C2),  # the third, 0.4 m off both ends
+        mk([10, -5], [10.5, -9], C1),  # across the first: no parallel true line near
+        mk([0, 0.5 + 3 + MARKING_MATCH_M], [20, 0.5 + 3 + MARKING_MATCH_M], C2),  # too far
+    ))
+    m = evaluate_map(mapped, true)
+    e1, e2, e3 = np.array([0.1, -0.3]), np.array([-0.1, 0.2]), np.array([0.4, 0.4])
+    expected = [e @ np.linalg.solve(np.array(C), e) for e, C in ((e1, C1), (e2, C2), (e3, C2))]
+    assert m.marking_nees_lines == 3
+    assert m.marking_nees_mean == pytest.approx(np.mean(expected))
+    assert m.marking_nees_median == pytest.approx(np.median(expected))
+    assert math.isnan(evaluate_map(replace(mapped, markings=mapped.markings[2:3]),
+                                   true).marking_nees_mean)
+
+
 def test_point_segment_distance_cases():
     a = np.array([[0.0, 0.0], [5.0, 5.0]])
     b = np.array([[2.0, 0.0], [5.0, 5.0]])  # second is a point
