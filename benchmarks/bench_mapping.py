@@ -19,7 +19,8 @@ from _common import run_semslam
 
 KEYS = ["corner_rmse_m", "corner_p95_m", "slots_true", "slots_mapped", "slots_matched",
         "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy", "tags_rmse_m",
-        "corner_nees_mean", "corner_nees_median", "id_brier", "id_confident_accuracy"]
+        "corner_nees_mean", "corner_nees_median", "id_brier", "id_confident_accuracy",
+        "marking_nees_mean", "marking_nees_median"]
 
 VARIANTS = {
     "maxmix (default)": ([], {}),
@@ -66,7 +67,7 @@ def main() -> None:
     cols = ["preset", "seed", "variant", "corner_rmse_m", "corner_p95_m", "slots_true",
             "slots_matched", "duplicate_slots", "false_slots", "wrong_merges", "id_accuracy",
             "id_brier", "id_confident_accuracy", "corner_nees_mean", "corner_nees_median",
-            "driving_s", "mapping_s", "speedup"]
+            "marking_nees_mean", "marking_nees_median", "driving_s", "mapping_s", "speedup"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in results:
