@@ -291,11 +291,7 @@ class MappingConfig(_Section):
         0.2, gt=0, le=MAX_GATE, description="m: both end points this near a line to belong to it"
     )
     marking_gap: float = Field(
-        -0.1, ge=-MAX_GATE, le=2 * MAX_GATE,
-        description="m: a detection joins a line whose extent it reaches within this; "
-        "negative: only one it overlaps by at least that much, so two painted lines end to "
-        "end and almost in line (back-to-back rows' separators) stay two (1.0 before: "
-        "`large` maps 0.34 -> 0.16 m, BENCHMARKS.md)"
+        1.0, ge=0, le=2 * MAX_GATE, description="m: a detection may extend a line by this"
     )
     marking_min_support: int = Field(
         5, ge=1, description="detections before a line joins the graph (and the map)"

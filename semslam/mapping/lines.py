@@ -127,7 +127,7 @@ class LineLandmarks:
         self,
         angle_tolerance_deg: float = 5.0,
         distance_gate: float = 0.2,
-        gap: float = -0.1,
+        gap: float = 1.0,
         min_support: int = 3,
         max_age: int = 20,
     ) -> None:
@@ -154,7 +154,7 @@ class LineLandmarks:
         cells = None
         if line.merged_into is None:
             ends = np.array(line.end_points())
-            margin = max(self.gap, 0.0) + self.distance_gate
+            margin = self.gap + self.distance_gate
             cells = _cell_range(ends.min(axis=0) - margin, ends.max(axis=0) + margin)
         old = self._cells_of.get(line.index)
         if cells == old:
@@ -214,8 +214,7 @@ class LineLandmarks:
 
         A candidate is live, parallel to the detection within the angle tolerance, has both
         end points within the distance gate across it, and overlaps its extent (plus the
-        gap; a negative gap asks that much overlap) along it. In Python floats: a few dozen
-        lines are filed near a detection."""
+        gap) along it. In Python floats: a few dozen lines are filed near a detection."""
         (ax, ay), (bx, by) = np.asarray(mE, dtype=float).tolist()
         length = math.hypot(bx - ax, by - ay)
         if length < 1e-9:

@@ -62,22 +62,3 @@ def test_the_variance_at_each_point_follows_from_the_offsets_at_the_two_ends():
     assert ends[1, 1] > 4 * ends[0, 0]
     # outside the segment the variance is the nearer end's (detections clamp there)
     assert across_variance(ends, np.array([-0.5, 1.5])) == pytest.approx(np.diag(ends))
-
-
-def test_two_painted_lines_end_to_end_and_almost_in_line_stay_two():
-    """Back-to-back rows' separators: two 5 m lines meeting at y = 5, 3 cm apart across. A
-    detection of the second (its end noisy by a few centimetres past the joint) does not
-    join the first; one that overlaps the first by more than the (negative) gap does, and
-    with a positive gap (as before) the second would have joined it too."""
-    from semslam.mapping.lines import LineLandmarks
-
-    first = np.array([[0.0, 0.0], [0.0, 5.0]])
-    second = np.array([[0.03, 4.96], [0.03, 10.0]])  # reaches 4 cm past the joint
-    overlapping = np.array([[0.01, 3.0], [0.01, 8.0]])
-    lines = LineLandmarks(gap=-0.1)
-    lines.start(first, keyframe=0)
-    assert lines.candidates(second) == []
-    assert [i for i, _ in lines.candidates(overlapping)] == [0]
-    before = LineLandmarks(gap=1.0)
-    before.start(first, keyframe=0)
-    assert [i for i, _ in before.candidates(second)] == [0]
