@@ -209,7 +209,8 @@ class Marking:
     ``across_covariance``: (2, 2) covariance, m^2, of the line's offsets across itself at
     ``a`` and at ``b``. A line's error is a shift and a turn, so its offset at the point a
     share ``lam`` of the way from ``a`` to ``b`` is ``(1 - lam) e_a + lam e_b``, and its
-    variance there follows from this matrix alone (:func:`across_variance`); a long line
+    variance there follows from this matrix alone
+    (:func:`semslam.line_uncertainty.across_variance`); a long line
     is surer in its middle or at one end than at the other. ``sigma`` squared is that
     variance's mean along the segment. None: only ``sigma`` is known (the same everywhere)."""
 

@@ -69,26 +69,23 @@ class LineLandmark:
         self.s_min, self.s_max = min(self.s_min, float(s.min())), max(self.s_max, float(s.max()))
 
 
-def across_sigma(covariance: FloatArray, s0: float, s1: float) -> float:
-    """RMS over the segment ``s0 <= s <= s1`` (m along the line from its foot point) of the
-    1-sigma of a line's position across itself, given the 2x2 covariance of its variable
-    ``(theta, d)`` (rad, m). At ``s`` the across offset ``n(theta) . (p - anchor) - d`` has
-    the Jacobian ``[s, -1]``, so its variance is ``s^2 S_tt - 2 s S_td + S_dd``; its mean
-    over the segment uses ``E[s] = (s0 + s1) / 2``, ``E[s^2] = (s0^2 + s0 s1 + s1^2) / 3``."""
-    S = np.asarray(covariance, dtype=float)
-    mean_s, mean_s2 = 0.5 * (s0 + s1), (s0 * s0 + s0 * s1 + s1 * s1) / 3.0
-    return math.sqrt(max(0.0, mean_s2 * S[0, 0] - 2.0 * mean_s * S[0, 1] + S[1, 1]))
-
-
 def end_covariance(covariance: FloatArray, s0: float, s1: float) -> FloatArray:
     """(2, 2) covariance (m^2) of a line's offsets across itself at ``s = s0`` and ``s = s1``
     (its two ends, m along the line from its foot point), given the 2x2 covariance of its
-    variable ``(theta, d)``: each offset has the Jacobian ``[s, -1]`` (see
-    :func:`across_sigma`, whose square is this matrix's variance averaged along the
-    segment)."""
+    variable ``(theta, d)`` (rad, m): at ``s`` the across offset ``n(theta) . (p - anchor) -
+    d`` has the Jacobian ``[s, -1]``. Anywhere between, the offset is the ends' blended
+    linearly (:mod:`semslam.line_uncertainty`)."""
     J = np.array([[s0, -1.0], [s1, -1.0]])
     C = J @ np.asarray(covariance, dtype=float) @ J.T
     return 0.5 * (C + C.T)
+
+
+def across_sigma(covariance: FloatArray, s0: float, s1: float) -> float:
+    """RMS over the segment ``s0 <= s <= s1`` of the 1-sigma of a line's position across
+    itself (see :func:`end_covariance`): the mean of ``(1 - t)^2 C_aa + 2 t (1 - t) C_ab +
+    t^2 C_bb`` over ``t`` in [0, 1] is ``(C_aa + C_ab + C_bb) / 3``."""
+    C = end_covariance(covariance, s0, s1)
+    return math.sqrt(max(0.0, (C[0, 0] + C[0, 1] + C[1, 1]) / 3.0))
 
 
 _CELL = 4.0  # m, side of a grid cell of LineLandmarks (10 m: association 10 % slower, same map)
