@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
         [--json out.json] [--points-model OTHER.onnx] [--no-verify] [--no-entrance-check]
-        [--no-mirror-look] [--cross-share 1.0]
+        [--no-mirror-look] [--no-row-completion] [--cross-share 1.0]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -269,6 +269,9 @@ def main() -> None:
                         help="the marking-point grid alone, without the verifier's second look")
     parser.add_argument("--no-entrance-check", action="store_true",
                         help="keep the points with no entrance line across their separator")
+    parser.add_argument("--no-row-completion", action="store_true",
+                        help="no junction added one slot width beyond a slot of two T "
+                        "junctions (SlotDetector.complete_rows)")
     parser.add_argument("--verifier", type=Path, nargs="+", default=None,
                         help="other verifier ONNX files, their verdicts averaged (default: "
                         "the shipped pair)")
@@ -283,7 +286,8 @@ def main() -> None:
     args = parser.parse_args()
     slots = SlotDetector(args.points_model, verify=not args.no_verify,
                          verifier_path=args.verifier,
-                         check_entrance=not args.no_entrance_check)
+                         check_entrance=not args.no_entrance_check,
+                         complete_rows=not args.no_row_completion)
     if slots.points.verifier is not None:
         slots.points.verifier.mirror_look = not args.no_mirror_look
     perception = TopviewPerception(lines=False, slot_detector=slots,

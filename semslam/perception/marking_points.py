@@ -118,12 +118,15 @@ class MarkingPoint:
         shape: T or L junction.
         confidence: in [0, 1]: the geometric mean of the grid's and the verifier's
             (:func:`verified_confidence`), the grid's alone without the verifier.
+        from_row: placed from its row, not seen: the next junction of a row of slots
+            whose separator the CNNs do not see (:mod:`semslam.perception.row_completion`).
     """
 
     uv: FloatArray
     direction: float
     shape: JunctionShape
     confidence: float
+    from_row: bool = False
 
 
 def verified_confidence(grid: FloatArray, verifier: FloatArray) -> FloatArray:

@@ -32,6 +32,7 @@ import numpy as np
 
 from semslam.geometry import FloatArray
 from semslam.perception.marking_points import MarkingPoint, MarkingPointDetector
+from semslam.perception.row_completion import row_completions
 from semslam.rig import TopviewSpec
 from semslam.types import JunctionShape, SlotKind, SlotObservation
 
@@ -325,6 +326,9 @@ class SlotDetector:
     ``model_path``, ``threshold``, ``verify``, ``verifier_path`` and ``check_entrance`` go
     to :class:`MarkingPointDetector` (``verify=False``: the grid's points without the
     verifier's second look; ``check_entrance=False``: bare line ends kept).
+    ``complete_rows``: add the junction one slot width beyond each slot of two T
+    junctions where the CNNs see none (:mod:`semslam.perception.row_completion`; a worn
+    separator), and infer the slots again with it.
     """
 
     def __init__(
@@ -336,7 +340,9 @@ class SlotDetector:
         verify: bool = True,
         verifier_path: str | os.PathLike[str] | list | tuple | None = None,
         check_entrance: bool = True,
+        complete_rows: bool = True,
     ) -> None:
+        self.complete_rows = complete_rows
         self.points = MarkingPointDetector(
             model_path, threshold, verify, verifier_path, check_entrance
         )
@@ -347,6 +353,13 @@ class SlotDetector:
         """The marking points and slots of one uint8 BGR top view."""
         pts = self.points.detect(topview_bgr)
         slots = infer_slots(pts, self.spec, self.rules)
+        if self.complete_rows and slots:
+            added = row_completions(
+                topview_bgr, pts, [(s.i, s.j) for s in slots], self.points.verifier
+            )
+            if added:
+                pts = pts + added
+                slots = infer_slots(pts, self.spec, self.rules)
         # perpendicular and parallel slots take their depth from the entrance line (good
         # to about a degree); slanted ones from the CNN's directions: snap those to paint,
         # and drop the ones whose separators this view does not show (refine_depth)

@@ -12,9 +12,11 @@ ground resolution given (``px_per_m``), and brought into the detectors' frame fo
 
 Per marking point: ``u``, ``v`` (px, OpenCV pixel centres), ``direction_deg`` (image
 coordinates, atan2(dv, du), along the separator into the slot), ``shape`` (T or L),
-``confidence``. Per slot: ``points`` (0-based indices of its entrance points),
-``corners_px`` and ``corners_vehicle`` (m; entrance-left, entrance-right, rear-right,
-rear-left), ``kind``, ``angle_deg``, ``confidence``, ``label``, ``label_confidence``.
+``confidence``, ``from_row`` (true: placed from its row's neighbours where no junction is
+seen, :mod:`semslam.perception.row_completion`). Per slot: ``points`` (0-based indices
+of its entrance points), ``corners_px`` and ``corners_vehicle`` (m; entrance-left,
+entrance-right, rear-right, rear-left), ``kind``, ``angle_deg``, ``confidence``,
+``label``, ``label_confidence``.
 Per painted line: end points ``a``, ``b`` in the vehicle frame (m), ``confidence``.
 Optionally an overlay picture per image (``<stem>.png`` in the overlay folder).
 
@@ -83,6 +85,7 @@ def detections_json(
                 "direction_deg": round(math.degrees(frame.direction_to_image(p.direction)), 2),
                 "shape": str(p.shape),
                 "confidence": round(float(p.confidence), 4),
+                "from_row": bool(p.from_row),
             }
             for p, (u, v) in zip(det.points, uv, strict=True)
         ],
@@ -112,8 +115,9 @@ def draw_overlay(
     frame: ViewFrame | None = None,
 ) -> np.ndarray:
     """The image with lines (blue), slots (green, with their IDs) and marking points
-    (red T, orange L, with direction) drawn on it; ``det`` in the detectors' frame, placed
-    on the image by ``frame`` (None: the image is in that frame)."""
+    (red T, orange L, with direction; magenta where placed from its row, not seen) drawn
+    on it; ``det`` in the detectors' frame, placed on the image by ``frame`` (None: the
+    image is in that frame)."""
     out = image.copy()
     spec = perception.spec
     frame = frame or _identity(image.shape)
@@ -141,6 +145,8 @@ def draw_overlay(
         u, v = frame.to_image(p.uv)[0]
         direction = float(frame.direction_to_image(p.direction))
         colour = (0, 0, 255) if str(p.shape) == "T" else (0, 140, 255)
+        if p.from_row:
+            colour = (255, 0, 255)
         tip = (
             int(round(u + 25 * math.cos(direction))),
             int(round(v + 25 * math.sin(direction))),
