@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from semslam.perception.marking_points import MarkingPoint
-from semslam.perception.row_completion import row_completions
+from semslam.perception.row_completion import ROW_SHARE_RIGHT, row_completions
 from semslam.perception.slots import SlotDetector
 from semslam.types import JunctionShape
 
@@ -34,7 +34,7 @@ def test_the_next_junction_of_a_row_is_added_on_both_sides():
         assert p.uv[1] == pytest.approx(400.0)
         assert p.shape is T
         assert p.direction == pytest.approx(UP)
-        assert p.confidence == pytest.approx(0.8)  # the lower of the pair's
+        assert p.confidence == pytest.approx(ROW_SHARE_RIGHT * 0.8)  # the lower of the pair's
         assert p.from_row
 
 
