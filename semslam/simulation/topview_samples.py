@@ -45,7 +45,10 @@ class PaintVariation:
     ``cross_length`` (m) into the aisle (a "+" or, on slanted rows, an "X": many of the real
     ps2.0 garages paint their junctions so). With probability ``faint_share`` the paint is
     worn faint: its colour pulled towards mid grey (128) by a share drawn from ``faint_mix``.
-    The junctions, and so the labels, stay where they are."""
+    Independently for each separator, with probability ``worn_share`` its first metres from
+    the junction, a length drawn from ``worn_length``, are worn away where cars drive over
+    them (the entrance line stays: the junction shows as a bare entrance line). The
+    junctions, and so the labels, stay where they are."""
 
     thin_share: float = 0.5
     thin_width: tuple[float, float] = (0.05, 0.10)
@@ -55,6 +58,8 @@ class PaintVariation:
     cross_length: tuple[float, float] = (0.1, 0.4)
     faint_share: float = 0.0
     faint_mix: tuple[float, float] = (0.3, 0.7)
+    worn_share: float = 0.0
+    worn_length: tuple[float, float] = (0.5, 2.0)
 
 
 def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator) -> World:
@@ -68,7 +73,8 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
         faint = rng.uniform(*variation.faint_mix)
         colour = tuple(int(round(c + (128.0 - c) * faint)) for c in world.line_colour)
         world = replace(world, line_colour=colour)
-    if width is None and stub is None and cross is None:
+    worn = variation.worn_share > 0
+    if width is None and stub is None and cross is None and not worn:
         return world
     starts = [(np.asarray(p.position, float), p.direction, p.shape is JunctionShape.T)
               for p in world.marking_points]
@@ -85,6 +91,12 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
             b = a + d * (stub / length)
         if cross is not None and junction:
             a = a - d * (cross / length)
+        if worn and separator and rng.random() < variation.worn_share:
+            left = float(np.hypot(*(b - a)))
+            gone = rng.uniform(*variation.worn_length)
+            if gone >= left:
+                continue  # worn away whole
+            a = a + (b - a) * (gone / left)
         out.append(Marking(a, b, m.width if width is None else width))
     return replace(world, markings=tuple(out))
 

@@ -81,3 +81,30 @@ def test_vary_paint_wears_the_paint_faint_towards_grey() -> None:
     assert varied.line_colour != world.line_colour
     assert varied.markings == world.markings  # only the colour, the lines where they were
     assert varied.marking_points == world.marking_points
+
+
+def test_vary_paint_wears_separators_away_from_their_junction() -> None:
+    world = make_world("small", 3)
+    varied = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, worn_share=1.0,
+                                              worn_length=(0.8, 0.8)), np.random.default_rng(0))
+    starts = {(round(float(p.position[0]), 6), round(float(p.position[1]), 6)): p.direction
+              for p in world.marking_points}
+    kept = iter(varied.markings)
+    worn = 0
+    for before in world.markings:
+        key = (round(float(before.a[0]), 6), round(float(before.a[1]), 6))
+        d = np.asarray(before.b, float) - np.asarray(before.a, float)
+        is_separator = key in starts and abs(
+            math.remainder(math.atan2(d[1], d[0]) - starts[key], math.tau)) < 1e-6
+        if is_separator and _length(before) <= 0.8:
+            continue  # worn away whole
+        after = next(kept)
+        np.testing.assert_array_equal(after.b, before.b)
+        if is_separator:  # its first 0.8 m gone, the rest where it was
+            assert math.isclose(_length(before) - _length(after), 0.8, abs_tol=1e-9)
+            worn += 1
+        else:
+            np.testing.assert_array_equal(after.a, before.a)
+    assert next(kept, None) is None
+    assert worn > 0
+    assert varied.marking_points == world.marking_points  # the labels stay
