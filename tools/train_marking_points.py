@@ -61,28 +61,32 @@ def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
     return (np.asarray(points, float) + 0.5) * k - 0.5
 
 
-def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0.0):
+def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0.0,
+                    worn_share: float = 0.0):
     """The training worlds' :class:`PaintVariation`: ``--vary-paint`` thin lines and stub
     separators, ``--cross-share`` separators painted across the entrance line,
-    ``--faint-share`` paint worn faint; None: as the simulator paints them."""
+    ``--faint-share`` paint worn faint, ``--worn-share`` separators worn away from their
+    junctions; None: as the simulator paints them."""
     from semslam.simulation.topview_samples import PaintVariation
 
     if vary_paint:
-        return PaintVariation(cross_share=cross_share, faint_share=faint_share)
-    if cross_share > 0 or faint_share > 0:
+        return PaintVariation(cross_share=cross_share, faint_share=faint_share,
+                              worn_share=worn_share)
+    if cross_share > 0 or faint_share > 0 or worn_share > 0:
         return PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share,
-                              faint_share=faint_share)
+                              faint_share=faint_share, worn_share=worn_share)
     return None
 
 
-def _render_shard(args: tuple[list[int], int, int, str, bool, float, float, int]) -> str:
+def _render_shard(args: tuple[list[int], int, int, str, bool, float, float, int, float]) -> str:
     from semslam.simulation.topview_samples import sample_topviews
 
-    seeds, per_world, seed, path, vary, cross, faint, side = args
+    seeds, per_world, seed, path, vary, cross, faint, side, worn = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
-    for s in sample_topviews(seeds, per_world, seed, paint=paint_variation(vary, cross, faint)):
+    paint = paint_variation(vary, cross, faint, worn)
+    for s in sample_topviews(seeds, per_world, seed, paint=paint):
         a = s.annotation
         images.append(cv2.resize(s.image, (side, side), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
@@ -109,20 +113,22 @@ def render_dataset(
     vary_paint: bool = False,
     cross_share: float = 0.0,
     faint_share: float = 0.0,
+    worn_share: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Rendered, resized training views and their labels (600 px coordinates); the worlds'
     paint varied by :func:`paint_variation`."""
     cache.mkdir(parents=True, exist_ok=True)
     spec = ([seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
             + ([f"cross{cross_share:g}"] if cross_share > 0 else [])
-            + ([f"faint{faint_share:g}"] if faint_share > 0 else []))
+            + ([f"faint{faint_share:g}"] if faint_share > 0 else [])
+            + ([f"worn{worn_share:g}"] if worn_share > 0 else []))
     key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
         jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
-                     cross_share, faint_share, INPUT))
+                     cross_share, faint_share, INPUT, worn_share))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -149,7 +155,7 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
         seed = args.data_seed + 1000 * k
         parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
                                     args.workers, args.vary_paint, args.cross_share,
-                                    args.faint_share))
+                                    args.faint_share, args.worn_share))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -715,6 +721,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="share of training worlds whose separators cross the entrance line")
     p.add_argument("--faint-share", type=float, default=0.0,
                    help="share of training worlds whose paint is worn faint")
+    p.add_argument("--worn-share", type=float, default=0.0,
+                   help="share of training separators worn away from their junctions")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--arch", choices=ARCHITECTURES, default="conv",
                    help="grid network (ARCHITECTURES)")
