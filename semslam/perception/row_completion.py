@@ -54,7 +54,6 @@ of a row"); the lower figure is taken."""
 
 def _seen(topview_bgr: np.ndarray, uv: np.ndarray, radius: int) -> bool:
     """Whether no pixel within ``radius`` (a square) of ``uv`` is black."""
-    h, w = topview_bgr.shape[:2]
     col, row = int(round(uv[0])), int(round(uv[1]))
     window = topview_bgr[max(0, row - radius): row + radius + 1,
                          max(0, col - radius): col + radius + 1]
