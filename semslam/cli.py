@@ -424,8 +424,10 @@ def detect(
     rows: dict[str, object] = {}
     for entry in result["images"]:
         labels = ", ".join(s["label"] or "?" for s in entry["slots"]) or "-"
+        from_row = sum(p["from_row"] for p in entry["points"])
+        placed = f" ({from_row} from their row)" if from_row else ""
         rows[entry["image"]] = (
-            f"{len(entry['points'])} points, {len(entry['slots'])} slots ({labels}), "
+            f"{len(entry['points'])} points{placed}, {len(entry['slots'])} slots ({labels}), "
             f"{len(entry['markings'])} lines"
         )
     print_metrics("semslam detect", rows, False)
