@@ -128,6 +128,7 @@ def simulated(perception: TopviewPerception, worlds: range, per_world: int,
     ids_right = ids_total = ids_read = 0
     confident = confident_right = 0
     t_slots, t_ids, t_both = [], [], []
+    from_row = 0  # points placed from their row (row_completion)
     paint = (PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share,
                             worn_share=worn_share)
              if cross_share > 0 or worn_share > 0 else None)  # the same poses either way
@@ -138,6 +139,7 @@ def simulated(perception: TopviewPerception, worlds: range, per_world: int,
         t_both.append(time.perf_counter() - t0)
         t_slots.append(det.timings_ms["slots"])
         t_ids.append(det.timings_ms["ids"])
+        from_row += sum(p.from_row for p in det.points)
         pts, dirs, shapes, conf = _arrays(det)
         # detections on covered labels are neither hits nor false: drop both
         covered = a.points[a.occluded]
@@ -231,6 +233,7 @@ def simulated(perception: TopviewPerception, worlds: range, per_world: int,
         "slot_recall": round(s["slot_recall"], 4),
         "shape_accuracy": round(s["shape_accuracy"], 4),
         "points": [s["point_true_positives"], s["point_detections"], s["point_labels"]],
+        "points_from_row": from_row,
         "dmpr_protocol": {
             "views": d["images"],
             "point_precision": round(d["point_precision"], 4),
