@@ -1017,7 +1017,7 @@ class Mapper:
             b = line.foot() + s1 * line.direction
             if np.linalg.norm(b - a) < self.cfg.marking_min_length:
                 continue
-            sigma, ends = None, None
+            ends = None  # known from the line's marginal only
             marginal = _marginal(marginals, L(index))
             if marginal is None:  # as for slots: the detections' noise, counted, on the map's
                 # own uncertainty where the line was seen from

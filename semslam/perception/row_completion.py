@@ -80,6 +80,7 @@ def row_completions(
     """
     h, w = topview_bgr.shape[:2]
     scale = max(h, w) / 600.0
+    border = BORDER_PX * scale
     uv = np.array([p.uv for p in points], float).reshape(-1, 2)
     added: list[MarkingPoint] = []
     for i, j in pairs:
@@ -88,7 +89,6 @@ def row_completions(
         for a, b in ((i, j), (j, i)):
             step = uv[b] - uv[a]
             q = uv[b] + step
-            border = BORDER_PX * scale
             if not (border <= q[0] <= w - 1 - border and border <= q[1] <= h - 1 - border):
                 continue
             half = 0.5 * float(np.hypot(*step))
