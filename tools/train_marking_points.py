@@ -26,6 +26,9 @@ on worlds some of whose separators cross the entrance line (``--cross-share``)::
         --init-onnx models/marking_points.onnx --out /tmp/marking_points.onnx
 
 ``--arch separable`` trains the smaller network of :data:`ARCHITECTURES` instead.
+``--distill A.onnx B.onnx`` also teaches the net the mean grid of those files (the pair the
+detector averages) on every training batch (:func:`distill_loss`): one grid trained to do
+the pair's work.
 ``--input 384`` trains one that reads 384 px views (a 24 x 24 grid) instead of 256 px.
 
 torch is needed here only; the package runs the exported model with onnxruntime.
@@ -389,6 +392,54 @@ def loss_fn(out, target, weight):
     return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir, (lconf, lshape, loff, ldir)
 
 
+def distill_loss(out, teacher, weight):
+    """:func:`loss_fn`'s terms against a teacher's activated (N, 6, G, G) grid instead of the
+    labels: its confidence and shape as soft targets, its offsets and directions weighted by
+    its confidence. The teacher of ``--distill`` is the mean of the files' grids, which is
+    what the runtime detector computes from the pair (``MarkingPointDetector.grid``)."""
+    import torch
+    import torch.nn.functional as nnf
+
+    conf_t = teacher[:, 0]
+    conf = nnf.binary_cross_entropy_with_logits(out[:, 0], conf_t, reduction="none")
+    lconf = (conf * weight * (1.0 + 4.0 * conf_t)).sum() / weight.sum()
+    mass = (conf_t * weight).sum().clamp(min=1.0)
+    lshape = (nnf.binary_cross_entropy_with_logits(out[:, 1], teacher[:, 1], reduction="none")
+              * conf_t * weight).sum() / mass
+    off = torch.sigmoid(out[:, 2:4])
+    loff = (((off - teacher[:, 2:4]) ** 2).sum(1) * conf_t * weight).sum() / mass
+    d = torch.tanh(out[:, 4:6])
+    ldir = (((d - teacher[:, 4:6]) ** 2).sum(1) * conf_t * weight).sum() / mass
+    return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir
+
+
+def load_teachers(paths: list[Path], arch: str) -> list:
+    """The ``--distill`` files as frozen torch nets (their folded weights, eval mode)."""
+    from onnx_weights import load_folded_onnx  # tools/: this script's dir
+
+    nets = []
+    for path in paths:
+        net = build_model(arch)
+        load_folded_onnx(net, path)
+        net.eval()
+        for param in net.parameters():
+            param.requires_grad_(False)
+        nets.append(net)
+    return nets
+
+
+def teacher_grid(teachers: list, x):
+    """The teachers' mean activated grid (sigmoid on channels 0-3, tanh on 4-5) for ``x``."""
+    import torch
+
+    with torch.no_grad():
+        grids = []
+        for net in teachers:
+            y = net(x).float()
+            grids.append(torch.cat([torch.sigmoid(y[:, 0:4]), torch.tanh(y[:, 4:6])], dim=1))
+        return torch.stack(grids).mean(0)
+
+
 class Exported:
     """Wraps the trained net: uint8 BGR NHWC in, activated (1, 6, G, G) grid out."""
 
@@ -510,8 +561,10 @@ def train(args: argparse.Namespace) -> None:
         load_folded_onnx(net, args.init_onnx)
     fast = not args.fp32 and native_bf16()
     print(f"steps in {'bf16' if fast else 'float32'}", flush=True)
+    teachers = load_teachers(args.distill, args.arch) if args.distill else []
     if fast:
         net = net.to(memory_format=torch.channels_last)
+        teachers = [t.to(memory_format=torch.channels_last) for t in teachers]
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     steps_per_epoch = n // args.batch
     total = steps_per_epoch * args.epochs
@@ -545,7 +598,13 @@ def train(args: argparse.Namespace) -> None:
             x = x.contiguous(memory_format=torch.channels_last)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
             out = net(x)
-        loss, _ = loss_fn(out.float(), torch.from_numpy(ts), torch.from_numpy(ws))
+        weight = torch.from_numpy(ws)
+        loss, _ = loss_fn(out.float(), torch.from_numpy(ts), weight)
+        if teachers:
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
+                taught = teacher_grid(teachers, x)
+            mix = args.distill_weight
+            loss = (1.0 - mix) * loss + mix * distill_loss(out.float(), taught.float(), weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -723,6 +782,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="share of training worlds whose paint is worn faint")
     p.add_argument("--worn-share", type=float, default=0.0,
                    help="share of training separators worn away from their junctions")
+    p.add_argument("--distill", type=Path, nargs="+", default=[],
+                   help="float grid files whose mean grid the net also learns (distill_loss)")
+    p.add_argument("--distill-weight", type=float, default=0.5,
+                   help="share of the loss from --distill's grid (the rest from the labels)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--arch", choices=ARCHITECTURES, default="conv",
                    help="grid network (ARCHITECTURES)")
