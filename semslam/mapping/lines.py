@@ -82,9 +82,16 @@ def end_covariance(covariance: FloatArray, s0: float, s1: float) -> FloatArray:
 
 def across_sigma(covariance: FloatArray, s0: float, s1: float) -> float:
     """RMS over the segment ``s0 <= s <= s1`` of the 1-sigma of a line's position across
-    itself (see :func:`end_covariance`): the mean of ``(1 - t)^2 C_aa + 2 t (1 - t) C_ab +
-    t^2 C_bb`` over ``t`` in [0, 1] is ``(C_aa + C_ab + C_bb) / 3``."""
-    C = end_covariance(covariance, s0, s1)
+    itself (see :func:`end_covariance` and :func:`segment_sigma`)."""
+    return segment_sigma(end_covariance(covariance, s0, s1))
+
+
+def segment_sigma(ends: FloatArray) -> float:
+    """RMS over a segment of the 1-sigma (m) of its position across itself, from the
+    (2, 2) covariance ``C`` of its across offsets at its two ends (:func:`end_covariance`):
+    the mean of ``(1 - t)^2 C_aa + 2 t (1 - t) C_ab + t^2 C_bb`` over ``t`` in [0, 1] is
+    ``(C_aa + C_ab + C_bb) / 3``."""
+    C = np.asarray(ends, dtype=float)
     return math.sqrt(max(0.0, (C[0, 0] + C[0, 1] + C[1, 1]) / 3.0))
 
 

@@ -75,7 +75,7 @@ from semslam.mapping.landmarks import (
     label_probability,
     mean_corner_distance,
 )
-from semslam.mapping.lines import LineLandmarks, across_sigma, end_covariance
+from semslam.mapping.lines import LineLandmarks, end_covariance, segment_sigma
 from semslam.mapping.loop_closure import ClosureVote, IdLoopClosure, correction_to
 from semslam.mapping.markings import merge_marking_observations, robust_extent
 from semslam.mapping.maxmix import (
@@ -980,9 +980,9 @@ class Mapper:
     def _export_markings(self, marginals) -> tuple[Marking, ...]:
         """Painted lines: the graph's line landmarks with extents re-measured from all their
         detections at the final keyframe poses (:func:`robust_extent`) and their position
-        uncertainty from the line's marginal (:func:`across_sigma`, and at its two ends
-        :func:`end_covariance`), or, without a graph,
-        the detections placed by odometry and merged (no uncertainty)."""
+        uncertainty from the line's marginal (at its two ends, :func:`end_covariance`, and
+        their RMS along it, :func:`segment_sigma`), or, without a graph, the detections
+        placed by odometry and merged (no uncertainty)."""
         poses = self.keyframe_poses
         if not self.use_graph:
             if not self.marking_detections:
@@ -1026,7 +1026,8 @@ class Mapper:
                 sigma = math.sqrt(self.cfg.marking_sigma**2 / keyframes + normal @ seen @ normal)
                 self._marginal_fallbacks += 1
             else:
-                sigma, ends = across_sigma(marginal, s0, s1), end_covariance(marginal, s0, s1)
+                ends = end_covariance(marginal, s0, s1)
+                sigma = segment_sigma(ends)
             width = float(np.median([w for _, _, w, _ in detections]))
             out.append(Marking(a, b, width, sigma, ends))
         return tuple(out)

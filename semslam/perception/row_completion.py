@@ -27,6 +27,7 @@ square sizes scale the distances); directions in radians, ``atan2(dv, du)``.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -107,8 +108,7 @@ def row_completions(
         topview_bgr, np.array([p.uv for p in added]), np.array([p.direction for p in added])
     )
     return [
-        MarkingPoint(m, p.direction, p.shape, p.confidence, from_row=True)
-        if np.hypot(*(m - p.uv)) <= MAX_MOVE_PX * scale else p
+        replace(p, uv=m) if np.hypot(*(m - p.uv)) <= MAX_MOVE_PX * scale else p
         for p, m in zip(added, moved, strict=True)
     ]
 

@@ -36,7 +36,7 @@ def test_the_variance_at_each_point_follows_from_the_offsets_at_the_two_ends():
     variance a numerical Jacobian of the across offset gives there; its mean along the
     segment is ``across_sigma`` squared, and the ends differ (a line surer at one end)."""
     from semslam.line_uncertainty import across_variance
-    from semslam.mapping.lines import end_covariance
+    from semslam.mapping.lines import end_covariance, segment_sigma
 
     theta, d, anchor = -0.7, 0.4, np.array([1.0, 3.0])
     root = np.array([[0.004, 0.0], [-0.2, 0.05]])
@@ -59,6 +59,7 @@ def test_the_variance_at_each_point_follows_from_the_offsets_at_the_two_ends():
     np.testing.assert_allclose(across_variance(ends, lam), expected, rtol=1e-5, atol=1e-12)
     assert math.sqrt(np.mean(across_variance(ends, lam))) == pytest.approx(
         across_sigma(S, s0, s1), rel=1e-3)
+    assert segment_sigma(ends) == across_sigma(S, s0, s1)
     assert ends[1, 1] > 4 * ends[0, 0]
     # outside the segment the variance is the nearer end's (detections clamp there)
     assert across_variance(ends, np.array([-0.5, 1.5])) == pytest.approx(np.diag(ends))
