@@ -4,6 +4,8 @@ files of a folder."""
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,6 +23,35 @@ _JPEG_END = b"\xff\xd9"
 _JPEG_TAIL = 1024
 """Bytes at a JPEG file's end searched for its end-of-image marker (writers may pad after it)."""
 
+_PNG_START = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(data: bytes) -> str | None:
+    """What is wrong with the chunks of a PNG file's bytes (one phrase), or None.
+
+    Walks the chunks (length, type, data, CRC-32 over type and data) from the signature:
+    the first must be IHDR, each CRC must match, and the file must reach IEND. libpng
+    would find the same faults, but prints them to stderr itself before OpenCV returns."""
+    at = len(_PNG_START)
+    first = True
+    while True:
+        if at + 8 > len(data):
+            return f"cut short at byte {len(data)} (no IEND chunk)"
+        length, kind = struct.unpack(">I4s", data[at : at + 8])
+        name = kind.decode("latin-1")
+        if first and kind != b"IHDR":
+            return f"its first chunk is {name!r}, not IHDR"
+        first = False
+        end = at + 8 + length + 4
+        if end > len(data):
+            return f"cut short in chunk {name!r} at byte {len(data)} (no IEND chunk)"
+        (crc,) = struct.unpack(">I", data[end - 4 : end])
+        if zlib.crc32(data[at + 4 : end - 4]) != crc:
+            return f"chunk {name!r} at byte {at} fails its CRC check"
+        if kind == b"IEND":
+            return None
+        at = end
+
 
 def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     """An image file (any format OpenCV reads) as uint8 BGR (H, W, 3), grey images
@@ -37,6 +68,8 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
     data = p.read_bytes()
     if data.startswith(_JPEG_START) and _JPEG_END not in data[-_JPEG_TAIL:]:
         raise FormatError(f"{p}: JPEG cut short (no end-of-image marker), {len(data)} bytes")
+    if data.startswith(_PNG_START) and (problem := png_problem(data)) is not None:
+        raise FormatError(f"{p}: broken PNG: {problem}")
     image = None
     if data:  # imdecode asserts on an empty buffer
         with _opencv_quiet():  # its own warnings ("can not handle 32-bit samples") before ours
@@ -58,9 +91,10 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
 
 @contextmanager
 def _opencv_quiet() -> Iterator[None]:
-    """OpenCV's log at errors only for the duration (it prints warnings to stderr)."""
+    """OpenCV's log silent for the duration (it prints its own warnings and errors, such as
+    "can not handle 32-bit samples", to stderr before ours)."""
     level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
@@ -84,4 +118,4 @@ def image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:
     return files
 
 
-__all__ = ["IMAGE_SUFFIXES", "image_files", "read_image"]
+__all__ = ["IMAGE_SUFFIXES", "image_files", "png_problem", "read_image"]

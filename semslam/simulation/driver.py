@@ -45,7 +45,9 @@ def _speed_targets(path: Path, cfg: DriveConfig, rng: np.random.Generator) -> Fl
     """Target speed along the path (per path sample), m/s."""
     # smooth random profile: knots every ~25 m, cosine-interpolated
     n_knots = max(2, int(path.length // 25.0) + 2)
-    knots = rng.uniform(cfg.min_speed + 0.3, cfg.max_speed, n_knots)
+    # knots from 0.3 m/s above the floor (the curvature limits slow the car further), or
+    # at the ceiling where the two are closer than that
+    knots = rng.uniform(min(cfg.min_speed + 0.3, cfg.max_speed), cfg.max_speed, n_knots)
     u = path.s / path.length * (n_knots - 1)
     i0 = np.minimum(u.astype(int), n_knots - 2)
     f = (1 - np.cos(np.pi * (u - i0))) / 2.0

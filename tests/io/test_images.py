@@ -51,3 +51,26 @@ def _png(folder: Path) -> Path:
     path = folder / "a.png"
     cv2.imwrite(str(path), np.full((6, 4), 200, np.uint8))
     return path
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda b: b[: len(b) // 2], "cut short"),
+        (lambda b: b[:8], "cut short at byte 8"),
+        (lambda b: b[:20] + bytes([b[20] ^ 0xFF]) + b[21:], "chunk 'IHDR' at byte 8 fails its CRC"),
+        (lambda b: b[:8] + b[33:], "its first chunk is 'IDAT', not IHDR"),
+    ],
+)
+def test_a_broken_png_is_one_error_and_nothing_from_libpng(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], damage, message: str
+) -> None:
+    """A PNG cut short, with a flipped byte or without its header chunk: one line naming
+    the file and the fault, and libpng's own "libpng error: ..." line never printed."""
+    path = tmp_path / "b.png"
+    cv2.imwrite(str(path), np.random.default_rng(1).integers(0, 255, (40, 30, 3), np.uint8))
+    path.write_bytes(damage(path.read_bytes()))
+    capfd.readouterr()
+    with pytest.raises(FormatError, match=f"b.png: broken PNG: {message}"):
+        read_image(path)
+    assert capfd.readouterr().err == ""

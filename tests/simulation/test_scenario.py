@@ -37,6 +37,16 @@ def test_speeds_and_rates(small_drive):
     assert np.allclose(np.diff(small_drive.frame_times), 0.1)
 
 
+def test_speeds_closer_than_the_knot_margin_still_drive():
+    """min_speed within 0.3 m/s of max_speed (the speed knots' margin above the floor),
+    or equal to it: the car drives between the two."""
+    for low, high in ((2.9, 3.0), (1.5, 1.5)):
+        cfg = SimulationConfig.model_validate(
+            {"drive": {"min_speed": low, "max_speed": high, "max_duration": 20.0}})
+        rec = simulate_drive("small", 0, 0, cfg).record
+        assert rec.speed.max() <= high + 0.01 and np.median(rec.speed) >= low - 0.01
+
+
 def test_true_odometry_reproduces_truth_with_ctrv(small_drive):
     rec = small_drive.record
     poses = integrate_odometry(rec.poses[0], rec.t, rec.speed, rec.yaw_rate)
