@@ -810,6 +810,7 @@ def import_garage_bev_command(
     from semslam.reporting import print_metrics
 
     try:
+        _output_folder(str(out_dir), "OUT")
         summary = import_garage_bev(src, out_dir, crop_rows=crop_rows, every=every,
                                     show_progress=progress)
     except (SemslamError, OSError) as e:

@@ -299,6 +299,10 @@ def test_an_output_in_an_unwritable_folder_is_named_up_front(small_drive):
     line = _fails(_run("map", small_drive, "-o", "/proc/m.json"), "-o /proc/m.json",
                   "cannot write in /proc")
     assert ".tmp" not in line
+    # a drive folder too: named as asked, not the hidden folder it would be staged in
+    line = _fails(_run("import", "garage-bev", small_drive, "/proc/gb"), "OUT /proc/gb",
+                  "cannot write in /proc")
+    assert ".partial" not in line
 
 
 # 10

@@ -44,6 +44,7 @@ from semslam.geometry import FloatArray
 from semslam.io._rows import parse_number
 from semslam.io._text import read_text, text_lines
 from semslam.io.map_json import MAX_COORDINATE
+from semslam.io.odometry import check_gaps
 from semslam.io.tum import read_tum_rows
 
 COLOR_TXT = "color.txt"
@@ -180,9 +181,11 @@ def read_odometry_poses(path: str | os.PathLike[str]) -> tuple[FloatArray, Float
     Raises:
         FormatError: missing file, no poses, a wrong column count, a non-number, a zero
             quaternion, a pose whose forward axis is vertical, time not strictly
-            increasing; the message names the file and line.
+            increasing, a gap in time (:func:`~semslam.io.odometry.check_gaps`); the
+            message names the file and line.
     """
     data, lines = read_tum_rows(path)
+    check_gaps(data[:, 0], lambda k: f"{os.fspath(path)} line {lines[k]}")
     forward = _body_y_axis(data[:, 4:8])
     vertical = np.nonzero(np.hypot(forward[:, 0], forward[:, 1]) < 1e-3)[0]
     if len(vertical):

@@ -66,7 +66,7 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
     check_times(columns["t"], path, DriveFormatError, "sample")
-    _check_gaps(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
+    check_gaps(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
     for column, (limit, _unit) in _LIMITS.items():
         over = np.flatnonzero(np.abs(columns[column]) > limit)
         if over.size:
@@ -107,7 +107,7 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
                 _refuse(where, column, float(data[i, j]))
         check_time_order(previous, data[i, 0], where, DriveFormatError)
         previous = data[i, 0]
-    _check_gaps(data[:, 0], lambda k: f"{name} line {rows[k][0]}")
+    check_gaps(data[:, 0], lambda k: f"{name} line {rows[k][0]}")
     return Odometry(t=data[:, 0].copy(), speed=data[:, 1].copy(), yaw_rate=data[:, 2].copy())
 
 
@@ -117,8 +117,10 @@ MIN_GAP_S = 1.0
 reckoning across it would be a guess, and the frames inside it would be placed wrong."""
 
 
-def _check_gaps(t: FloatArray, where: Callable[[int], str]) -> None:
-    """Refuse a gap; ``where(k)`` names sample ``k`` (``odometry.csv line 17``)."""
+def check_gaps(t: FloatArray, where: Callable[[int], str]) -> None:
+    """Refuse a gap in the times ``t`` (s): :data:`MAX_GAP_PERIODS` median intervals and
+    :data:`MIN_GAP_S` both exceeded; ``where(k)`` names sample ``k`` (``odometry.csv line
+    17``)."""
     if len(t) < 3:
         return
     dt = np.diff(t)

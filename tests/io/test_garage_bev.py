@@ -222,6 +222,16 @@ def test_masks_are_read_in_frame_order_and_a_frame_with_two_masks_is_refused(
         open_garage_bev(root)
 
 
+def test_a_gap_in_the_odometry_file_names_that_file_and_line(tmp_path: Path) -> None:
+    """Poses missing for 2 s in the middle of the recording: refused where they are
+    missing, not later in the odometry.csv the import would write."""
+    path = tmp_path / "odo.txt"
+    times = [100 + 0.1 * k for k in range(10)] + [102.0 + 0.1 * k for k in range(10)]
+    path.write_text("".join(f"{t:.6f} 0 {0.2 * k} 0 0 0 0 1\n" for k, t in enumerate(times)))
+    with pytest.raises(FormatError, match=r"odo.txt line 11: 1.100 s since the sample before"):
+        read_odometry_poses(path)
+
+
 def test_a_folder_with_no_vector_map_is_named(tmp_path: Path) -> None:
     with pytest.raises(DriveError, match=rf"{tmp_path}: no vector map there"):
         read_vector_map(tmp_path)
