@@ -9,6 +9,10 @@ import numpy as np
 from semslam.io._fields import Field
 from semslam.types import TagFamily
 
+MAX_YAW = 1000.0
+"""A tag's yaw (radians) is refused beyond this: any angle is one within a turn, and a
+writer's unwrapped angle stays far below it; 1e300 is a broken file, not an angle."""
+
 
 def tag_to_dict(family: TagFamily, tag_id: int, size: float, pose: Any, height: float,
                 covariance: Any) -> dict[str, Any]:
@@ -28,13 +32,15 @@ def tag_to_dict(family: TagFamily, tag_id: int, size: float, pose: Any, height: 
 
 def tag_fields(f: Field, reach: float | None = None) -> dict[str, Any]:
     """The checked parts of a tag dict: family, tag_id, size, pose (3,), height, covariance;
-    ``x`` and ``y`` within ``reach`` (metres) of the frame's origin when given."""
+    ``x`` and ``y`` within ``reach`` (metres) of the frame's origin when given, ``yaw``
+    within :data:`MAX_YAW`."""
     low, high = (None, None) if reach is None else (-reach, reach)
     return {
         "family": f["family"].choice(TagFamily),
         "tag_id": f["id"].integer(0),
         "size": f["size"].number(positive=True),
-        "pose": np.array([f["x"].number(low, high), f["y"].number(low, high), f["yaw"].number()]),
+        "pose": np.array([f["x"].number(low, high), f["y"].number(low, high),
+                          f["yaw"].number(-MAX_YAW, MAX_YAW)]),
         "height": f["height"].number(),
         "covariance": f["covariance"].array((3, 3)),
     }

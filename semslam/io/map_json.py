@@ -42,6 +42,7 @@ from semslam.io._schema import validate
 from semslam.io._tag import tag_fields, tag_to_dict
 from semslam.io._text import read_text
 from semslam.io.atomic import atomic_write_text
+from semslam.io.observations import MIN_SLOT_SIDE, shortest_side
 from semslam.types import Marking, SemanticMap, Slot, SlotKind, Tag
 
 MAP_FORMAT = "semslam-map"
@@ -180,6 +181,10 @@ def _slot_to_dict(slot: Slot) -> dict[str, Any]:
 
 def _slot_from_field(f: Field) -> Slot:
     corners = f["corners"].array((4, 2), within=MAX_COORDINATE)
+    side = shortest_side(corners)
+    if side < MIN_SLOT_SIDE:  # as a sighting's: a slot no wider than paint is no slot
+        f["corners"].fail(f"a side of {side:.3g} m: corners must be at least "
+                          f"{MIN_SLOT_SIDE} m apart")
     covariances = f["corner_covariances"].array((4, 2, 2))
     check_covariances(f["corner_covariances"], covariances, MAX_VARIANCE)
     return Slot(

@@ -152,6 +152,24 @@ def test_duplicate_slot_ids(tmp_path: Path) -> None:
         load_map(path)
 
 
+def test_a_slot_whose_corners_coincide_is_refused(tmp_path: Path) -> None:
+    """As a sighting's: four corners at one point are no slot (sides under 5 cm)."""
+    path, document = _saved(tmp_path)
+    document["slots"][1]["corners"] = [[2.0, 3.0]] * 4
+    _write(path, document)
+    with pytest.raises(MapError, match=r"slots/1/corners: a side of 0 m: corners must be at "
+                                       r"least 0.05 m apart"):
+        load_map(path)
+
+
+def test_an_absurd_tag_yaw_is_refused(tmp_path: Path) -> None:
+    path, document = _saved(tmp_path)
+    document["tags"][0]["yaw"] = 1e300
+    _write(path, document)
+    with pytest.raises(MapError, match=r"tags/0/yaw: must be <= 1000"):
+        load_map(path)
+
+
 def test_save_refuses_bad_map_and_keeps_old_file(tmp_path: Path) -> None:
     path, _ = _saved(tmp_path)
     before = path.read_text()

@@ -57,7 +57,7 @@ tags = st.builds(
     family=st.sampled_from(TagFamily),
     tag_id=st.integers(0, 10**6),
     size=positive,
-    vTt=st.tuples(metres, metres, real).map(np.array),
+    vTt=st.tuples(metres, metres, st.floats(-1e3, 1e3)).map(np.array),  # yaw: MAX_YAW
     height=real,
     covariance=covariances,
 )

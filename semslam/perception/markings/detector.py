@@ -156,7 +156,7 @@ class MarkingDetector:
         n = spec.size_px
         if img.shape[:2] != (n, n):
             raise MarkingInputError(
-                f"topview: expected {n} x {n} px for this TopviewSpec, "
+                f"topview: expected {n} x {n} px (the rig's top-view size), "
                 f"got {img.shape[1]} x {img.shape[0]}"
             )
         gray = marking_channel(img)
