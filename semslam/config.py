@@ -21,6 +21,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -48,6 +49,16 @@ against 3.5 s) and associates nothing better."""
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_boolean_for_a_number(cls, value: Any, info: ValidationInfo) -> Any:
+        """``true`` / ``false`` where a number is meant is a mistake, not 1 / 0 (pydantic's
+        lax mode would take it)."""
+        annotation = str(cls.model_fields[info.field_name].annotation)
+        if isinstance(value, bool) and "bool" not in annotation:
+            raise ValueError(f"expected a number, got {str(value).lower()}")
+        return value
 
     @field_validator("*", mode="after")
     @classmethod

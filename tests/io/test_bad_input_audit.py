@@ -215,6 +215,16 @@ def test_min_speed_above_max_speed_names_both(tmp_path: Path) -> None:
     _one_line(exc, "c.json", "simulation.drive", "min_speed (5)", "max_speed (1)")
 
 
+def test_true_for_a_number_is_refused_and_for_a_switch_taken(tmp_path: Path) -> None:
+    path = tmp_path / "c.json"
+    path.write_text('{"simulation": {"drive": {"max_speed": true}}}')
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    _one_line(exc, "c.json", "simulation.drive.max_speed", "expected a number, got true")
+    path.write_text('{"mapping": {"use_markings": false}}')
+    assert load_config(path).mapping.use_markings is False
+
+
 def test_a_huge_integer_setting_is_refused_before_gtsam_overflows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
