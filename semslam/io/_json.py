@@ -14,6 +14,7 @@ import json
 import math
 import os
 import re
+import sys
 from collections.abc import Iterator
 from enum import Enum
 from typing import Any
@@ -59,7 +60,12 @@ def parse_json(text: str, source: str, error: type[SemslamError]) -> Any:
             f"{source}: not valid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}"
             + hint
         ) from None
-    except (ValueError, RecursionError) as exc:  # e.g. an integer with 5000 digits
+    except RecursionError:
+        raise error(f"{source}: not valid JSON: arrays or objects nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer with 5000 digits
+        if "int_max_str_digits" in str(exc) or "integer string conversion" in str(exc):
+            raise error(f"{source}: not valid JSON: an integer of more than "
+                        f"{sys.get_int_max_str_digits():,} digits") from None
         raise error(f"{source}: not valid JSON: {first_line(exc)}") from None
 
 

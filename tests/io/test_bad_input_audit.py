@@ -498,3 +498,22 @@ def test_a_key_twice_in_one_object_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as exc:
         load_config(path)
     _one_line(exc, str(path), "duplicate key 'keyframe_distance'")
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[" * 100_000, "nested too deeply"),
+    ('{"a": ' + "9" * 5000 + "}", "an integer of more than"),
+])
+def test_json_python_cannot_parse_is_named_in_plain_words(
+    tmp_path: Path, text: str, words: str
+) -> None:
+    """Nesting past Python's recursion limit and integers past its digit limit: the message
+    says what the file holds, not which Python setting would take it."""
+    path = tmp_path / "m.json"
+    path.write_text(text)
+    with pytest.raises(MapError) as exc:
+        from semslam.io import load_map
+
+        load_map(path)
+    _one_line(exc, "m.json", "not valid JSON", words)
+    assert "sys." not in str(exc.value) and "recursion" not in str(exc.value)
