@@ -28,6 +28,10 @@ MIN_PX_PER_M = 10.0
 MIN_SIDE_PX = 16
 """Smallest image side read."""
 
+MIN_GROUND_M = 1.0
+"""Least ground an image must cover (its longer side, metres): a junction's paint and the
+floor around it; less is a wrong ``--px-per-m``."""
+
 
 @dataclass(frozen=True)
 class ViewFrame:
@@ -78,8 +82,9 @@ def view_frame(
 
     Raises:
         PerceptionError: ``px_per_m`` is not a positive number, the image is smaller than
-            :data:`MIN_SIDE_PX` or coarser than :data:`MIN_PX_PER_M`, or it covers more
-            ground than the detectors' view (they read one 10 m view; crop it).
+            :data:`MIN_SIDE_PX` or coarser than :data:`MIN_PX_PER_M`, or it covers less
+            ground than :data:`MIN_GROUND_M` or more than the detectors' view (they read
+            one 10 m view; crop it).
     """
     spec = spec or TopviewSpec()
     height, width = (int(n) for n in image_shape[:2])
@@ -100,8 +105,14 @@ def view_frame(
             f"read (at least {MIN_PX_PER_M:g} px per metre; give its --px-per-m)"
         )
     new_w, new_h = max(1, round(width * factor)), max(1, round(height * factor))
+    extent = max(height, width) * factor * spec.metres_per_px
+    if extent < MIN_GROUND_M:
+        raise PerceptionError(
+            f"top view of {width} x {height} px at {resolution:g} px per metre covers "
+            f"{extent:.3g} m: too little ground to read (at least {MIN_GROUND_M:g} m; check "
+            "its --px-per-m)"
+        )
     if new_w > side or new_h > side:
-        extent = max(height, width) * factor * spec.metres_per_px
         raise PerceptionError(
             f"top view of {width} x {height} px at {resolution:g} px per metre covers "
             f"{extent:.1f} m; the detectors read views of at most "
@@ -128,4 +139,6 @@ def into_detector_frame(image: np.ndarray, frame: ViewFrame,
                               cv2.BORDER_CONSTANT, value=0)
 
 
-__all__ = ["MIN_PX_PER_M", "MIN_SIDE_PX", "ViewFrame", "into_detector_frame", "view_frame"]
+__all__ = [
+    "MIN_GROUND_M", "MIN_PX_PER_M", "MIN_SIDE_PX", "ViewFrame", "into_detector_frame", "view_frame",
+]

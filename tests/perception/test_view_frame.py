@@ -67,6 +67,9 @@ def test_a_view_too_small_or_too_coarse_is_refused():
     with pytest.raises(PerceptionError, match=r"80 x 80 px at 8 px per metre: too coarse"):
         view_frame((80, 80, 3))
     assert view_frame((100, 100, 3)).scale == (6.0, 6.0)  # 10 px per metre: read
+    with pytest.raises(PerceptionError, match=r"covers 1e-303 m: too little ground"):
+        view_frame((600, 600, 3), px_per_m=6e305)
+    assert view_frame((600, 600, 3), px_per_m=600.0).scale == (0.1, 0.1)  # 1 m: read
 
 
 def test_points_in_the_padding_are_dropped_with_their_slots():
