@@ -51,6 +51,9 @@ def _fail(error: Exception) -> None:
 def _output_path(text: str, option: str) -> Path:
     if not text.strip():
         raise SemslamError(f"{option}: empty path")
+    if text == "-":  # where other tools write to standard output: a file named "-" surprises
+        raise SemslamError(f"{option} -: semslam writes files, not standard output; name one "
+                           "(./- for a file of that name)")
     return Path(text)
 
 

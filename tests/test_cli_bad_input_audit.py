@@ -131,6 +131,7 @@ def test_empty_output_path(small_drive, tmp_path, command):
         "accuracy": ("accuracy", small_drive / "world.json"),
     }[command]
     _fails(_run(*args, "-o", ""), "-o: empty path")
+    _fails(_run(*args, "-o", "-"), "-o -: semslam writes files, not standard output")
 
 
 # 3
