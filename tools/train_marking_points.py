@@ -374,43 +374,38 @@ def _to_tensor(batch_u8: np.ndarray):
 
 
 def loss_fn(out, target, weight):
-    import torch
-    import torch.nn.functional as nnf
-
-    conf = nnf.binary_cross_entropy_with_logits(out[:, 0], target[:, 0], reduction="none")
-    pos = target[:, 0]
-    # positives weigh more (few per view): DMPR-PS-like balance
-    lconf = (conf * weight * (1.0 + 4.0 * pos)).sum() / weight.sum()
-    npos = pos.sum().clamp(min=1.0)
-    lshape = (
-        nnf.binary_cross_entropy_with_logits(out[:, 1], target[:, 1], reduction="none") * pos
-    ).sum() / npos
-    off = torch.sigmoid(out[:, 2:4])
-    loff = (((off - target[:, 2:4]) ** 2).sum(1) * pos).sum() / npos
-    d = torch.tanh(out[:, 4:6])
-    ldir = (((d - target[:, 4:6]) ** 2).sum(1) * pos).sum() / npos
-    return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir, (lconf, lshape, loff, ldir)
+    """The grid's loss against the labels' (N, 6, G, G) target grid, with the per-cell
+    ``weight`` on the confidence term; the other terms count at the labelled points."""
+    return _grid_loss(out, target, weight, target[:, 0])
 
 
 def distill_loss(out, teacher, weight):
     """:func:`loss_fn`'s terms against a teacher's activated (N, 6, G, G) grid instead of the
     labels: its confidence and shape as soft targets, its offsets and directions weighted by
-    its confidence. The teacher of ``--distill`` is the mean of the files' grids, which is
-    what the runtime detector computes from the pair (``MarkingPointDetector.grid``)."""
+    its confidence (and ``weight``). The teacher of ``--distill`` is the mean of the files'
+    grids, which is what the runtime detector computes from the pair
+    (``MarkingPointDetector.grid``)."""
+    return _grid_loss(out, teacher, weight, teacher[:, 0] * weight)[0]
+
+
+def _grid_loss(out, target, weight, at):
+    """Confidence (binary cross-entropy, positives weighing 5x: few per view, DMPR-PS-like),
+    then shape, offset and direction where ``at`` (per cell, >= 0) says a point is; the
+    total and its four terms."""
     import torch
     import torch.nn.functional as nnf
 
-    conf_t = teacher[:, 0]
-    conf = nnf.binary_cross_entropy_with_logits(out[:, 0], conf_t, reduction="none")
-    lconf = (conf * weight * (1.0 + 4.0 * conf_t)).sum() / weight.sum()
-    mass = (conf_t * weight).sum().clamp(min=1.0)
-    lshape = (nnf.binary_cross_entropy_with_logits(out[:, 1], teacher[:, 1], reduction="none")
-              * conf_t * weight).sum() / mass
+    pos = target[:, 0]
+    conf = nnf.binary_cross_entropy_with_logits(out[:, 0], pos, reduction="none")
+    lconf = (conf * weight * (1.0 + 4.0 * pos)).sum() / weight.sum()
+    mass = at.sum().clamp(min=1.0)
+    lshape = (nnf.binary_cross_entropy_with_logits(out[:, 1], target[:, 1], reduction="none")
+              * at).sum() / mass
     off = torch.sigmoid(out[:, 2:4])
-    loff = (((off - teacher[:, 2:4]) ** 2).sum(1) * conf_t * weight).sum() / mass
+    loff = (((off - target[:, 2:4]) ** 2).sum(1) * at).sum() / mass
     d = torch.tanh(out[:, 4:6])
-    ldir = (((d - teacher[:, 4:6]) ** 2).sum(1) * conf_t * weight).sum() / mass
-    return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir
+    ldir = (((d - target[:, 4:6]) ** 2).sum(1) * at).sum() / mass
+    return lconf + 0.5 * lshape + 10.0 * loff + 2.0 * ldir, (lconf, lshape, loff, ldir)
 
 
 def load_teachers(paths: list[Path], arch: str) -> list:
