@@ -81,15 +81,17 @@ def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0
     return None
 
 
-def _render_shard(args: tuple[list[int], int, int, str, bool, float, float, int, float]) -> str:
+def _render_shard(
+    args: tuple[list[int], int, int, str, bool, float, float, int, float, float],
+) -> str:
     from semslam.simulation.topview_samples import sample_topviews
 
-    seeds, per_world, seed, path, vary, cross, faint, side, worn = args
+    seeds, per_world, seed, path, vary, cross, faint, side, worn, slot_share = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
     paint = paint_variation(vary, cross, faint, worn)
-    for s in sample_topviews(seeds, per_world, seed, paint=paint):
+    for s in sample_topviews(seeds, per_world, seed, paint=paint, slot_share=slot_share):
         a = s.annotation
         images.append(cv2.resize(s.image, (side, side), interpolation=cv2.INTER_AREA))
         pts.append(np.asarray(a.points, np.float32).reshape(-1, 2))
@@ -117,21 +119,24 @@ def render_dataset(
     cross_share: float = 0.0,
     faint_share: float = 0.0,
     worn_share: float = 0.0,
+    slot_share: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Rendered, resized training views and their labels (600 px coordinates); the worlds'
-    paint varied by :func:`paint_variation`."""
+    paint varied by :func:`paint_variation`; ``slot_share`` of the views taken parking into
+    a slot (``sample_topviews``)."""
     cache.mkdir(parents=True, exist_ok=True)
     spec = ([seeds, per_world, seed, INPUT] + (["paint"] if vary_paint else [])
             + ([f"cross{cross_share:g}"] if cross_share > 0 else [])
             + ([f"faint{faint_share:g}"] if faint_share > 0 else [])
-            + ([f"worn{worn_share:g}"] if worn_share > 0 else []))
+            + ([f"worn{worn_share:g}"] if worn_share > 0 else [])
+            + ([f"slot{slot_share:g}"] if slot_share > 0 else []))
     key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
         jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
-                     cross_share, faint_share, INPUT, worn_share))
+                     cross_share, faint_share, INPUT, worn_share, slot_share))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -158,7 +163,7 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
         seed = args.data_seed + 1000 * k
         parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
                                     args.workers, args.vary_paint, args.cross_share,
-                                    args.faint_share, args.worn_share))
+                                    args.faint_share, args.worn_share, args.slot_share))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -777,6 +782,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="share of training worlds whose paint is worn faint")
     p.add_argument("--worn-share", type=float, default=0.0,
                    help="share of training separators worn away from their junctions")
+    p.add_argument("--slot-share", type=float, default=0.0,
+                   help="share of training views taken parking into a slot")
     p.add_argument("--distill", type=Path, nargs="+", default=[],
                    help="float grid files whose mean grid the net also learns (distill_loss)")
     p.add_argument("--distill-weight", type=float, default=0.5,

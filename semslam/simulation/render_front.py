@@ -588,7 +588,6 @@ class FrontRenderer:
                     lines.append((np.array([xmin, v]), np.array([xmax, v])))
                 else:
                     lines.append((np.array([v, ymin]), np.array([v, ymax])))
-        self._beam_lines = lines
         for a, b in lines:
             length = float(np.linalg.norm(b - a))
             n = max(1, int(math.ceil(length / 4.0)))

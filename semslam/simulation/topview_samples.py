@@ -3,7 +3,8 @@
 A sample is a rendered ps2.0-style top view with its :class:`TopviewAnnotation`, taken at
 a random pose in a random world: world preset and seed, a point on an aisle (anywhere
 across its width, heading along it either way with a few degrees of jitter, or turning
-at a junction), and a per-frame render seed (lighting, camera gains, noise, JPEG).
+at a junction; or, for a share of the views, parking into a free slot), and a per-frame
+render seed (lighting, camera gains, noise, JPEG).
 Held-out sets use disjoint world seeds, so a model is never scored on a garage it saw.
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 from semslam.simulation.render_topview import TopviewAnnotation, TopviewRenderer
 from semslam.simulation.world import make_world
 from semslam.simulation.world_types import World
-from semslam.types import JunctionShape, Marking
+from semslam.types import JunctionShape, Marking, SlotKind
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,17 +122,51 @@ def random_aisle_pose(world, rng: np.random.Generator) -> np.ndarray:
     return np.array([p[0], p[1], math.atan2(math.sin(yaw), math.cos(yaw))])
 
 
+def random_slot_pose(world, rng: np.random.Generator) -> np.ndarray | None:
+    """A vehicle pose ``(x, y, yaw)`` parking into a random free perpendicular or slanted
+    slot of ``world`` (none with a parked car in it): heading along the slot's depth, nose
+    in or reversing in, +-8 deg, up to 0.3 m off its middle, its centre from 1.5 m before
+    the entrance line to 2 m short of the rear (the car straddles the entrance line, as in
+    ps2.0's views, recorded while parking). None when the world has no such slot."""
+    cars = np.array([c.centre for c in world.parked_cars]).reshape(-1, 2)
+    free = []
+    for slot in world.slots:
+        if slot.kind == SlotKind.PARALLEL:
+            continue
+        c = np.asarray(slot.corners, float)
+        lo, hi = c.min(axis=0), c.max(axis=0)
+        if not ((cars >= lo) & (cars <= hi)).all(axis=1).any():
+            free.append(c)
+    if not free:
+        return None
+    c = free[int(rng.integers(len(free)))]
+    entrance = 0.5 * (c[0] + c[1])
+    depth_vec = 0.5 * (c[2] + c[3]) - entrance
+    depth = float(np.hypot(*depth_vec))
+    u = depth_vec / depth
+    n = np.array([-u[1], u[0]])
+    along = rng.uniform(-1.5, max(depth - 2.0, -1.0))
+    p = entrance + u * along + n * rng.uniform(-0.3, 0.3)
+    yaw = math.atan2(u[1], u[0]) + (math.pi if rng.random() < 0.5 else 0.0)
+    yaw += math.radians(rng.uniform(-8.0, 8.0))
+    return np.array([p[0], p[1], math.atan2(math.sin(yaw), math.cos(yaw))])
+
+
 def sample_topviews(
     world_seeds: list[int] | range,
     per_world: int,
     seed: int,
     presets: tuple[str, ...] = ("garage", "small"),
     paint: PaintVariation | None = None,
+    slot_share: float = 0.0,
 ) -> Iterator[TopviewSample]:
     """``per_world`` random top views from each world seed (preset drawn per world), the
-    worlds' paint varied by ``paint`` (training data; its draws do not move the poses).
+    worlds' paint varied by ``paint`` (training data; its draws do not move the poses);
+    a share ``slot_share`` of the views taken parking into a slot (:func:`random_slot_pose`),
+    the rest on an aisle (:func:`random_aisle_pose`).
 
-    Deterministic in (world_seeds, per_world, seed, presets, paint).
+    Deterministic in (world_seeds, per_world, seed, presets, paint, slot_share); with
+    ``slot_share`` 0 the same views as before it existed.
     """
     rng = np.random.default_rng(seed)
     for ws in world_seeds:
@@ -141,10 +176,21 @@ def sample_topviews(
             world = vary_paint(world, paint, np.random.default_rng([seed, int(ws), 7]))
         renderer = TopviewRenderer(world)
         for _ in range(per_world):
-            mTv = random_aisle_pose(world, rng)
+            mTv = None
+            if slot_share > 0 and rng.random() < slot_share:
+                mTv = random_slot_pose(world, rng)
+            if mTv is None:
+                mTv = random_aisle_pose(world, rng)
             rseed = int(rng.integers(2**31 - 1))
             image, annotation = renderer.render(mTv, rseed)
             yield TopviewSample(image, annotation, preset, int(ws), mTv, rseed)
 
 
-__all__ = ["PaintVariation", "TopviewSample", "random_aisle_pose", "sample_topviews", "vary_paint"]
+__all__ = [
+    "PaintVariation",
+    "TopviewSample",
+    "random_aisle_pose",
+    "random_slot_pose",
+    "sample_topviews",
+    "vary_paint",
+]

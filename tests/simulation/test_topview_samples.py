@@ -2,8 +2,14 @@ import math
 
 import numpy as np
 
-from semslam.simulation.topview_samples import PaintVariation, sample_topviews, vary_paint
+from semslam.simulation.topview_samples import (
+    PaintVariation,
+    random_slot_pose,
+    sample_topviews,
+    vary_paint,
+)
 from semslam.simulation.world import make_world
+from semslam.types import SlotKind
 
 
 def _length(m) -> float:
@@ -108,3 +114,45 @@ def test_vary_paint_wears_separators_away_from_their_junction() -> None:
     assert next(kept, None) is None
     assert worn > 0
     assert varied.marking_points == world.marking_points  # the labels stay
+
+
+def test_a_slot_pose_parks_into_a_free_slot_along_its_depth() -> None:
+    world = make_world("garage", 12)
+    rng = np.random.default_rng(4)
+    cars = np.array([c.centre for c in world.parked_cars])
+    for _ in range(20):
+        x, y, yaw = random_slot_pose(world, rng)
+        inside = [s for s in world.slots
+                  if _slot_depth_coordinate(s, (x, y)) is not None]
+        assert len(inside) == 1  # within one slot's width, from 1.5 m before its entrance
+        slot = inside[0]
+        assert slot.kind != SlotKind.PARALLEL
+        c = np.asarray(slot.corners, float)
+        assert not ((cars >= c.min(axis=0)) & (cars <= c.max(axis=0))).all(axis=1).any()
+        depth = 0.5 * (c[2] + c[3]) - 0.5 * (c[0] + c[1])
+        off = math.remainder(yaw - math.atan2(depth[1], depth[0]), math.pi)
+        assert abs(off) <= math.radians(8.0) + 1e-9  # nose in or reversing in
+
+
+def _slot_depth_coordinate(slot, p) -> float | None:
+    """How far ``p`` lies into ``slot`` along its depth, if it lies within its width (less
+    the sampler's 0.3 m) and between 1.5 m before the entrance and the rear."""
+    c = np.asarray(slot.corners, float)
+    entrance = 0.5 * (c[0] + c[1])
+    depth = 0.5 * (c[2] + c[3]) - entrance
+    u = depth / np.hypot(*depth)
+    d = np.asarray(p, float) - entrance
+    along, across = float(d @ u), float(d @ np.array([-u[1], u[0]]))
+    return along if -1.5 - 1e-9 <= along <= np.hypot(*depth) and abs(across) <= 0.3 + 1e-9 \
+        else None
+
+
+def test_slot_share_takes_views_in_slots_and_leaves_the_aisle_views_alone() -> None:
+    before = list(sample_topviews([5, 6], 2, 9))
+    assert all(np.array_equal(a.mTv, b.mTv) and np.array_equal(a.image, b.image)
+               for a, b in zip(before, sample_topviews([5, 6], 2, 9, slot_share=0.0),
+                               strict=True))
+    in_slots = list(sample_topviews([5, 6], 2, 9, slot_share=1.0))
+    for sample in in_slots:
+        world = make_world(sample.preset, sample.world_seed)
+        assert any(_slot_depth_coordinate(s, sample.mTv[:2]) is not None for s in world.slots)
