@@ -124,10 +124,12 @@ def random_aisle_pose(world, rng: np.random.Generator) -> np.ndarray:
 
 def random_slot_pose(world, rng: np.random.Generator) -> np.ndarray | None:
     """A vehicle pose ``(x, y, yaw)`` parking into a random free perpendicular or slanted
-    slot of ``world`` (none with a parked car in it): heading along the slot's depth, nose
-    in or reversing in, +-8 deg, up to 0.3 m off its middle, its centre from 1.5 m before
-    the entrance line to 2 m short of the rear (the car straddles the entrance line, as in
-    ps2.0's views, recorded while parking). None when the world has no such slot."""
+    slot of ``world``: heading along the slot's depth, nose in or reversing in, +-8 deg, up
+    to 0.3 m off its middle, its centre from 1.5 m before the entrance line to 2 m short of
+    the rear (the car straddles the entrance line, as in ps2.0's views, recorded while
+    parking). A slot is free when no parked car's centre lies within its bounding box (which
+    may pass over a free slanted slot, never takes an occupied one). None when the world has
+    no free slot."""
     cars = np.array([c.centre for c in world.parked_cars]).reshape(-1, 2)
     free = []
     for slot in world.slots:

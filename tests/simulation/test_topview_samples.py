@@ -143,8 +143,8 @@ def _slot_depth_coordinate(slot, p) -> float | None:
     u = depth / np.hypot(*depth)
     d = np.asarray(p, float) - entrance
     along, across = float(d @ u), float(d @ np.array([-u[1], u[0]]))
-    return along if -1.5 - 1e-9 <= along <= np.hypot(*depth) and abs(across) <= 0.3 + 1e-9 \
-        else None
+    inside = -1.5 - 1e-9 <= along <= np.hypot(*depth) and abs(across) <= 0.3 + 1e-9
+    return along if inside else None
 
 
 def test_slot_share_takes_views_in_slots_and_leaves_the_aisle_views_alone() -> None:
