@@ -317,6 +317,64 @@ def to_vehicle(points: FloatArray, offset: float) -> FloatArray:
 # --------------------------------------------------------------------------- the import
 
 
+def mask_observations(
+    rec, every: int, crop_rows: int, offset: float, show_progress: bool | None
+) -> tuple[list, list[str], tuple[int, int] | None]:
+    """The painted lines of every ``every``-th slot-line mask of the recording ``rec``
+    (:func:`semslam.io.garage_bev.open_garage_bev`), ``crop_rows`` blanked at the top and
+    bottom, in the vehicle frame whose origin lies ``offset`` m ahead of the mask centre
+    (:func:`to_vehicle`).
+
+    Returns:
+        One ``FrameObservations`` per mask used, its path inside the drive folder
+        (``masks/NAME``), and the masks' (rows, columns); None when no mask was read.
+
+    Raises:
+        DriveError: ``crop_rows`` would blank every row. FormatError: a broken mask, or
+            one whose size differs from the first's.
+    """
+    from semslam.io.garage_bev import METRES_PER_PX, SLOT_LINE_RGB, class_mask
+    from semslam.io.images import read_image
+    from semslam.perception.markings import MarkingDetector
+    from semslam.types import FrameObservations, MarkingObservation
+
+    detector = MarkingDetector()
+    pick = np.arange(0, len(rec.mask_frames), every)
+    frames: list[FrameObservations] = []
+    paths: list[str] = []
+    shape = None
+    with progress_bar(len(pick), "masks", show_progress) as bar:
+        for i in pick:
+            path = rec.mask_paths[i]
+            mask = class_mask(read_image(path), SLOT_LINE_RGB, os.fspath(path))
+            if shape is None:
+                shape = mask.shape
+                if 2 * crop_rows >= shape[0]:
+                    raise DriveError(
+                        f"{os.fspath(path)}: --crop-rows {crop_rows} blanks all "
+                        f"{shape[0]} rows of the mask (at most {(shape[0] - 1) // 2})"
+                    )
+            elif mask.shape != shape:
+                raise FormatError(
+                    f"{os.fspath(path)}: {mask.shape[1]} x {mask.shape[0]} px, the first "
+                    f"mask was {shape[1]} x {shape[0]}"
+                )
+            if crop_rows:
+                mask[:crop_rows] = False
+                mask[max(mask.shape[0] - crop_rows, 0) :] = False
+            h, w = mask.shape
+            observations = []
+            for o in detector.detect_mask(mask, METRES_PER_PX, (w / 2, h / 2)):
+                vE = to_vehicle(np.array([o.vA, o.vB]), offset)
+                observations.append(MarkingObservation(vE[0], vE[1], o.width, o.confidence))
+            frames.append(
+                FrameObservations(t=float(rec.mask_times[i]), markings=tuple(observations))
+            )
+            paths.append(f"masks/{path.name}")
+            bar.update(1)
+    return frames, paths, shape
+
+
 def import_garage_bev(
     src: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -357,15 +415,12 @@ def import_garage_bev(
     from semslam.io.garage_bev import (
         METRES_PER_PX,
         SLOT_LINE_RGB,
-        class_mask,
         open_garage_bev,
         read_vector_map,
     )
-    from semslam.io.images import read_image
     from semslam.motion import integrate_odometry
-    from semslam.perception.markings import MarkingDetector
     from semslam.rig import Rig, TopviewSpec
-    from semslam.types import FrameObservations, Marking, MarkingObservation, SemanticMap
+    from semslam.types import Marking, SemanticMap
 
     started = time.perf_counter()
     src, out_dir = Path(src), Path(out_dir)
@@ -386,42 +441,8 @@ def import_garage_bev(
     deviation = np.hypot(*(reckoned[:, :2] - poses[:, :2]).T)
     drift = float(deviation.max())
 
-    detector = MarkingDetector()
-    pick = np.arange(0, len(rec.mask_frames), every)
-    frames: list[FrameObservations] = []
-    paths: list[str] = []
-    shape = None
     with staged_drive_folder(out_dir, DriveError) as tmp:
-        with progress_bar(len(pick), "masks", show_progress) as bar:
-            for i in pick:
-                path = rec.mask_paths[i]
-                image = read_image(path)
-                mask = class_mask(image, SLOT_LINE_RGB, os.fspath(path))
-                if shape is None:
-                    shape = mask.shape
-                    if 2 * crop_rows >= shape[0]:
-                        raise DriveError(
-                            f"{os.fspath(path)}: --crop-rows {crop_rows} blanks all "
-                            f"{shape[0]} rows of the mask (at most {(shape[0] - 1) // 2})"
-                        )
-                elif mask.shape != shape:
-                    raise FormatError(
-                        f"{os.fspath(path)}: {mask.shape[1]} x {mask.shape[0]} px, the first "
-                        f"mask was {shape[1]} x {shape[0]}"
-                    )
-                if crop_rows:
-                    mask[:crop_rows] = False
-                    mask[max(mask.shape[0] - crop_rows, 0) :] = False
-                h, w = mask.shape
-                observations = []
-                for o in detector.detect_mask(mask, METRES_PER_PX, (w / 2, h / 2)):
-                    vE = to_vehicle(np.array([o.vA, o.vB]), offset)
-                    observations.append(MarkingObservation(vE[0], vE[1], o.width, o.confidence))
-                frames.append(
-                    FrameObservations(t=float(rec.mask_times[i]), markings=tuple(observations))
-                )
-                paths.append(f"masks/{path.name}")
-                bar.update(1)
+        frames, paths, shape = mask_observations(rec, every, crop_rows, offset, show_progress)
         masks_link = tmp / "masks"
         try:
             masks_link.symlink_to((src / "masks").resolve(), target_is_directory=True)
