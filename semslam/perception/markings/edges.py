@@ -28,7 +28,9 @@ def edge_pixels(eq: NDArray[np.uint8], invalid: NDArray[np.bool_], p: MarkingPar
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), float(p.blur_sigma_px)), np.float32)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    mag = cv2.magnitude(gx, gy)
+    # numpy, not cv2.magnitude: OpenCV's (IPP's) result changed in its last bits from call
+    # to call on the same gradients, moving the lines by up to 1e-7 px between runs
+    mag = np.sqrt(gx * gx + gy * gy)
     cand = (mag >= p.grad_min) & ~invalid
     # walk only from edges whose gradient (into the bright side) points into one half
     # plane (with a 20 deg overlap): each line is found from one of its two edges, or
