@@ -403,3 +403,24 @@ def test_imported_detections_land_on_the_vector_map_and_the_localizer_follows(
     poses = np.array([e.pose for e in estimates])
     assert np.hypot(*(poses[:, :2] - reckoned[at, :2]).T).max() < 0.5
     assert sum(e.status == "tracking" for e in estimates) > 0.6 * len(frames)
+
+
+@needs_real
+def test_a_real_mask_gives_the_same_lines_in_every_run() -> None:
+    """The line detector on a real slot-line mask, again and again in one process: the same
+    lines to the bit (cv2.magnitude's last bits once changed from call to call)."""
+    from semslam.io.garage_bev import METRES_PER_PX, SLOT_LINE_RGB, class_mask, open_garage_bev
+    from semslam.io.images import read_image
+    from semslam.perception.markings import MarkingDetector
+
+    rec = open_garage_bev(REAL)
+    mask = class_mask(read_image(rec.mask_paths[500]), SLOT_LINE_RGB, "mask")
+    mask[:300] = False
+    mask[-300:] = False
+    detector = MarkingDetector()
+    runs = [detector.detect_mask_lines(mask.copy(), METRES_PER_PX,
+                                       (mask.shape[1] / 2, mask.shape[0] / 2)) for _ in range(6)]
+    assert len(runs[0].a) >= 3
+    for lines in runs[1:]:
+        assert np.array_equal(lines.a, runs[0].a) and np.array_equal(lines.b, runs[0].b)
+        assert np.array_equal(lines.confidence, runs[0].confidence)
