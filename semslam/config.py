@@ -56,7 +56,8 @@ class _Section(BaseModel):
         """``true`` / ``false`` where a number is meant is a mistake, not 1 / 0 (pydantic's
         lax mode would take it)."""
         annotation = cls.model_fields[info.field_name].annotation
-        if isinstance(value, bool) and annotation is not bool and bool not in get_args(annotation):
+        admits = {annotation, *get_args(annotation)}
+        if isinstance(value, bool) and bool not in admits and admits & {int, float}:
             raise ValueError(f"expected a number, got {str(value).lower()}")
         return value
 

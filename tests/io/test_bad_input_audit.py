@@ -318,6 +318,8 @@ def test_a_misspelt_section_in_a_semslam_variable_is_refused(
          ["label_confidence_range", "0 <= low <= high <= 1"]),
         (b'{"simulation": {"drive": {"max_speed": true}}}',
          ["simulation.drive.max_speed", "expected a number, got true"]),
+        # a switch where a word is meant: pydantic's own message, not "a number"
+        (b'{"localization": {"update": true}}', ["localization.update", "valid string"]),
     ],
 )
 def test_config_files_that_would_break_a_run_later_are_refused(
