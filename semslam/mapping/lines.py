@@ -80,12 +80,6 @@ def end_covariance(covariance: FloatArray, s0: float, s1: float) -> FloatArray:
     return 0.5 * (C + C.T)
 
 
-def across_sigma(covariance: FloatArray, s0: float, s1: float) -> float:
-    """RMS over the segment ``s0 <= s <= s1`` of the 1-sigma of a line's position across
-    itself (see :func:`end_covariance` and :func:`segment_sigma`)."""
-    return segment_sigma(end_covariance(covariance, s0, s1))
-
-
 def segment_sigma(ends: FloatArray) -> float:
     """RMS over a segment of the 1-sigma (m) of its position across itself, from the
     (2, 2) covariance ``C`` of its across offsets at its two ends (:func:`end_covariance`):

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from semslam.mapping.lines import across_sigma
+from semslam.mapping.lines import end_covariance, segment_sigma
 
 
-def test_across_sigma_is_the_mean_variance_of_the_across_offset_along_the_segment():
+def test_segment_sigma_is_the_mean_variance_of_the_across_offset_along_the_segment():
     """Against a numerical Jacobian of the across offset at points along the line, with
     the variance averaged over a fine grid of the segment."""
     theta, d, anchor = 0.3, 1.2, np.array([2.0, -1.0])
@@ -27,16 +27,16 @@ def test_across_sigma_is_the_mean_variance_of_the_across_offset_along_the_segmen
         J = np.array([(across(p, theta + h, d) - across(p, theta - h, d)) / (2 * h),
                       (across(p, theta, d + h) - across(p, theta, d - h)) / (2 * h)])
         variances.append(J @ S @ J)
-    assert across_sigma(S, s0, s1) == pytest.approx(math.sqrt(np.mean(variances)), rel=1e-3)
-    assert across_sigma(np.zeros((2, 2)), s0, s1) == 0.0
+    sigma = segment_sigma(end_covariance(S, s0, s1))  # as the mapper exports it
+    assert sigma == pytest.approx(math.sqrt(np.mean(variances)), rel=1e-3)
+    assert segment_sigma(end_covariance(np.zeros((2, 2)), s0, s1)) == 0.0
 
 
 def test_the_variance_at_each_point_follows_from_the_offsets_at_the_two_ends():
     """``end_covariance`` and ``across_variance`` give, at every point of the segment, the
     variance a numerical Jacobian of the across offset gives there; its mean along the
-    segment is ``across_sigma`` squared, and the ends differ (a line surer at one end)."""
+    segment is ``segment_sigma`` squared, and the ends differ (a line surer at one end)."""
     from semslam.line_uncertainty import across_variance
-    from semslam.mapping.lines import end_covariance, segment_sigma
 
     theta, d, anchor = -0.7, 0.4, np.array([1.0, 3.0])
     root = np.array([[0.004, 0.0], [-0.2, 0.05]])
@@ -58,8 +58,7 @@ def test_the_variance_at_each_point_follows_from_the_offsets_at_the_two_ends():
         expected.append(J @ S @ J)
     np.testing.assert_allclose(across_variance(ends, lam), expected, rtol=1e-5, atol=1e-12)
     assert math.sqrt(np.mean(across_variance(ends, lam))) == pytest.approx(
-        across_sigma(S, s0, s1), rel=1e-3)
-    assert segment_sigma(ends) == across_sigma(S, s0, s1)
+        segment_sigma(ends), rel=1e-3)
     assert ends[1, 1] > 4 * ends[0, 0]
     # outside the segment the variance is the nearer end's (detections clamp there)
     assert across_variance(ends, np.array([-0.5, 1.5])) == pytest.approx(np.diag(ends))
