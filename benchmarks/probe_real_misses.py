@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from _common import report
 
+from semslam.evaluation.detection_metrics import PS20_DISTANCE_PX, match_points
 from semslam.io.dmpr_labels import read_dmpr_labels
 from semslam.io.images import read_image
 from semslam.perception.marking_points import (
@@ -45,7 +46,6 @@ from semslam.perception.marking_points import (
 from semslam.perception.slots import SlotDetector
 
 PS20 = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "ps2.0-samples"
-HIT_PX, HIT_DEG = 10.0, 30.0  # the ps2.0 metric
 
 
 def _turn_deg(a: float, b: float) -> float:
@@ -61,12 +61,18 @@ def probe_view(detector: SlotDetector, image: np.ndarray, points: np.ndarray,
     cells = grid.shape[1]
     candidates = decode_grid(grid, side, CANDIDATE_THRESHOLD)
     final, _ = detector.detect(image)
+    # which labels the shipped output hits, as bench_perception.py scores them (one-to-one)
+    match = match_points(np.array([p.uv for p in final]).reshape(-1, 2),
+                         np.array([p.direction for p in final]),
+                         np.array([p.confidence for p in final]), points, directions)
+    hit = set(match[match >= 0].tolist())
     at_label = marking.verifier.verify(image, points, directions)[0] if len(points) else []
     rows = []
     for k, ((u, v), d) in enumerate(zip(points, directions, strict=True)):
         cu, cv = int(u * cells / side), int(v * cells / side)
         window = grid[0, max(cv - 1, 0): cv + 2, max(cu - 1, 0): cu + 2]
-        near = [c for c in candidates if math.hypot(c.uv[0] - u, c.uv[1] - v) <= HIT_PX]
+        near = [c for c in candidates
+                if math.hypot(c.uv[0] - u, c.uv[1] - v) <= PS20_DISTANCE_PX]
         best = max(near, key=lambda c: c.confidence) if near else None
         row = {
             "label": [round(float(u)), round(float(v))],
@@ -75,8 +81,7 @@ def probe_view(detector: SlotDetector, image: np.ndarray, points: np.ndarray,
             "candidate_turn_deg": None if best is None else round(_turn_deg(best.direction, d)),
             "verifier_at_candidate": None,
             "verifier_at_label": round(float(at_label[k]), 2),
-            "hit": any(math.hypot(p.uv[0] - u, p.uv[1] - v) <= HIT_PX
-                       and _turn_deg(p.direction, d) <= HIT_DEG for p in final),
+            "hit": k in hit,
         }
         if best is not None:
             prob = marking.verifier.verify(image, best.uv[None], np.array([best.direction]))[0]
@@ -104,7 +109,8 @@ def _lost_at(row: dict, best) -> str | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--images", type=Path, default=PS20 / "images")
+    parser.add_argument("--images", type=Path, default=PS20 / "images",
+                        help="600 x 600 top views (*.jpg), as ps2.0's")
     parser.add_argument("--labels", type=Path, default=PS20 / "labels")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
