@@ -437,6 +437,11 @@ class LocalizationConfig(_Section):
     relocalize_window: float = Field(
         2.0, ge=0, description="s of recent frames, placed by odometry, used to relocalize"
     )
+    lone_tag_after: float = Field(
+        1.0, ge=0, description="s without an applied slot or tag after which one tag alone, "
+        "contradicting the filter twice in a row, may move the car far (a kidnap seen by one "
+        "tag; 0: never, once tracking has begun)"
+    )
     check_every: int = Field(
         2, ge=1, description="frames between consistency checks against global relocalization"
     )

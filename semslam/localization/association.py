@@ -85,6 +85,8 @@ class Associations:
     slot_observations: list[int] = field(default_factory=list)  # the frame's slot of each
     rejected: dict[str, int] = field(default_factory=lambda: {"slot": 0, "tag": 0, "marking": 0})
     unmapped: int = 0  # rejected painted lines seen where the map holds none
+    accepted_tags: list[tuple] = field(default_factory=list)  # (family, ID) of each tag ...
+    rejected_tags: list[tuple] = field(default_factory=list)  # ... accepted, and rejected
     marking_map_var: float = 0.0  # mean map variance across the lines where used, m^2
     count: int = 0  # associated observations
 
@@ -194,8 +196,10 @@ class LocalMap:
             m = TagMeasurement(np.asarray(obs.vTt, float), R, np.asarray(tag.mTt, float))
             if _d2(m, pose, P) <= self._tag_gate:
                 self._accept(out, "tag", m)
+                out.accepted_tags.append((obs.family, obs.tag_id))
             else:
                 out.rejected["tag"] += 1
+                out.rejected_tags.append((obs.family, obs.tag_id))
 
     def _slots(self, frame, pose, P, out: Associations) -> None:
         """The Mahalanobis distances of all (observation, nearby map slot) pairs that can

@@ -24,8 +24,12 @@ Per frame (observations in the vehicle frame, time ``t``):
 5. recovery: while lost, and every ``check_every`` frames while tracking, the last
    seconds of frames (:mod:`.recent`) are relocalized globally; a global pose that
    contradicts the filter (outside the gate) twice in a row, or any global pose while
-   lost, resets the filter there (once tracking has begun, a far jump backed by one tag
-   alone is refused: a moved tag must not teleport the car). So a wrong start, a
+   lost, resets the filter there. Once tracking has begun, a far jump backed by one tag
+   alone is refused while slots or tags keep the car on track (a moved tag must not
+   teleport it), and allowed once none has been applied for ``lone_tag_after`` s (a kidnap
+   that one tag sees); a tag rejected in frames whose slots or tags were applied, or whose
+   jump left the car lost before slots agreed, is suspect and kept out of global fixes
+   until the filter takes it again. So a wrong start, a
    kidnap or a divergence is repaired from the map alone, and ``--init auto`` is the same
    mechanism started in the ``initializing`` state.
 
@@ -36,7 +40,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
+from collections import defaultdict, deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -60,6 +64,7 @@ from semslam.motion import ctrv_predict
 from semslam.types import FrameObservations, SemanticMap
 
 _PLAUSIBLE_CHI2 = chi2_quantile(0.99999, 3)  # a global fix this far from the filter: a jump
+SUSPECT_AFTER = 3  # frames in a row a tag is rejected, slots or tags applied: suspect
 
 INITIALIZING, TRACKING, COASTING, LOST, RELOCALIZED = (
     "initializing", "tracking", "coasting", "lost", "relocalized"
@@ -136,6 +141,10 @@ class Localizer:
         self.t: float | None = None
         self._next_odometry = 0
         self._failures = 0  # frames in a row with observations and nothing applied
+        self._landmark_t: float | None = None  # last slot or tag update applied (or reset)
+        self._suspect_tags: set[tuple] = set()  # (family, ID): no longer in global fixes
+        self._tag_misfits: dict[tuple, int] = defaultdict(int)  # rejections in a row
+        self._jump_tags: set[tuple] = set()  # the tags of the last far jump on one tag alone
         self._disagreements = 0
         self._label_checks: deque[bool] = deque(maxlen=cfg.label_check_window)  # True: differs
         self._labels_contradict = False
@@ -168,6 +177,8 @@ class Localizer:
                 tags=frame.tags if self.cfg.use_tags else (),
             )
         self._advance(frame.t)
+        if self._landmark_t is None:
+            self._landmark_t = self.t
         self._frames += 1
         self.recent.add(self._odometry_pose[:3], frame)
         if not self.initialized:
@@ -183,6 +194,11 @@ class Localizer:
                 self.filter.apply(innovation)
                 self._floor_to_map(assoc)
                 applied = assoc.count
+                if assoc.slots or "tag" in assoc.kinds:
+                    self._landmark_t = self.t
+                    self._count_tag_misfits(assoc)
+                if assoc.slots:
+                    self._jump_tags = set()  # slots agree with where the tag put the car
             else:
                 rejected += assoc.count
         update_ms = (time.perf_counter() - started) * 1e3
@@ -197,6 +213,8 @@ class Localizer:
             or self._labels_contradict
         )
         if lost:
+            self._suspect_tags |= self._jump_tags
+            self._jump_tags = set()
             return self._try_relocalize(frame, LOST, applied, rejected, update_ms)
         if self._frames % self.cfg.check_every == 0 and self._contradicted(frame):
             return self._try_relocalize(frame, LOST, applied, rejected, update_ms)
@@ -280,10 +298,22 @@ class Localizer:
             elif share < 0.5 * self.cfg.label_contradiction:
                 self._labels_contradict = False
 
+    def _count_tag_misfits(self, assoc) -> None:
+        """A tag rejected in ``SUSPECT_AFTER`` frames in a row where slots or tags were
+        applied is suspect (moved, or a misdetection; one rejection now and then is the
+        gate's own false alarm) until the filter takes it again."""
+        for key in assoc.accepted_tags:
+            self._tag_misfits[key] = 0
+            self._suspect_tags.discard(key)
+        for key in assoc.rejected_tags:
+            self._tag_misfits[key] += 1
+            if self._tag_misfits[key] >= SUSPECT_AFTER:
+                self._suspect_tags.add(key)
+
     def _contradicted(self, frame: FrameObservations) -> bool:
         """Does a global relocalization of this frame contradict the filter (twice in a row)?"""
-        found = self.relocalizer.locate(self.recent.merged() or frame)
-        if found is None or (_one_tag(found) and self._failures == 0):
+        found, _, lone_tag_may_move = self._locate(frame)
+        if found is None or (_one_tag(found) and self._failures == 0 and not lone_tag_may_move):
             # a tag alone does not overrule a filter whose updates pass: a tag that moved,
             # or a misdetection, must not teleport a car that is tracking well
             return False
@@ -291,13 +321,37 @@ class Localizer:
         return self._disagreements >= 2
 
     def _try_relocalize(self, frame, status_if_not, applied=0, rejected=0, update_ms=0.0):
-        found = self.relocalizer.locate(self.recent.merged() or frame)
-        if found is None or (
-            self.initialized and _one_tag(found) and not self._plausible(found)
-        ):  # once tracking has begun, a far jump needs slots or tags to back it, not one tag
+        found, seen, lone_tag_may_move = self._locate(frame)
+        if found is None:
+            return self._estimate(status_if_not, applied, rejected, update_ms)
+        tag_jump = self.initialized and _one_tag(found) and not self._plausible(found)
+        if tag_jump and not lone_tag_may_move:
+            # once tracking has begun, a far jump needs slots or tags to back it, not one tag
             return self._estimate(status_if_not, applied, rejected, update_ms)
         self._reset(found.mTv, found.covariance)
+        if tag_jump:  # should the car be lost again before slots agree, the tag lied
+            self._jump_tags = {(t.family, t.tag_id) for t in seen.tags}
         return self._estimate(RELOCALIZED, applied, rejected, update_ms)
+
+    def _locate(self, frame: FrameObservations):
+        """A global fix from the recent frames (or this one) without the suspect tags (None
+        if none), the frame it was sought in, and whether one tag alone may move the car far.
+
+        One tag alone may move it only once no slot or tag has been applied for
+        ``lone_tag_after`` seconds: the car then holds its pose by dead reckoning, or by
+        painted lines, which repeat from aisle to aisle, and a tag that keeps contradicting
+        it is more likely right (a kidnap, a divergence) than moved. A car that slots or tags
+        keep on track is not moved by one tag. A tag rejected while slots or tags were
+        applied, or one whose jump left the car lost before slots agreed, is suspect (moved,
+        or a misdetection): it no longer takes part in global fixes."""
+        seen = self.recent.merged() or frame
+        if self._suspect_tags:
+            seen = replace(seen, tags=tuple(
+                t for t in seen.tags if (t.family, t.tag_id) not in self._suspect_tags
+            ))
+        after = self.cfg.lone_tag_after
+        may_move = after > 0 and self.t - self._landmark_t >= after
+        return self.relocalizer.locate(seen), seen, may_move
 
     def _plausible(self, found) -> bool:
         """Is a global fix within the gate of the filter's own (perhaps inflated) belief?"""
@@ -327,6 +381,8 @@ class Localizer:
         self.initialized = True
         self._failures = 0
         self._disagreements = 0
+        self._landmark_t = self.t
+        self._jump_tags = set()
         self._label_checks.clear()
         self._labels_contradict = False
 

@@ -69,10 +69,11 @@ def test_a_wrong_tag_association_is_rejected_by_the_gate(sim):
     liar = TagObservation(tag.family, tag.tag_id, tag.size, np.array([6.0, 3.0, 0.5]), tag.height,
                           np.diag([0.02**2, 0.02**2, math.radians(2) ** 2]))
     frames = [dataclasses.replace(f, tags=f.tags + (liar,)) for f in sim.noisy]
-    _, estimates = _run(sim, frames)
+    loc, estimates = _run(sim, frames)
     pos, _ = _errors(sim, estimates)
     assert np.sqrt(np.mean(pos**2)) < 0.08
     assert all(e.rejected >= 1 for e in estimates)
+    assert (tag.family, tag.tag_id) in loc._suspect_tags  # never in a global fix again
 
 
 def test_finds_its_pose_with_no_start_and_recovers_from_a_kidnap(sim):
@@ -93,6 +94,63 @@ def test_finds_its_pose_with_no_start_and_recovers_from_a_kidnap(sim):
     back = next(i for i in range(k, len(pos)) if pos[i] < 0.3)
     assert sim.noisy[back].t - sim.noisy[k].t < 3.0
     assert any(e.status == "relocalized" for e in after)
+
+
+def _only_tag(frame, tag_id, shift=None, yaw=0.0, keep_slots=False):
+    """``frame`` with no painted line, no slot (unless ``keep_slots``) and only tag
+    ``tag_id``; that tag seen as if moved by ``shift`` (2,) m in the map frame, the car
+    heading ``yaw`` (rad)."""
+    tags = [t for t in frame.tags if t.tag_id == tag_id]
+    if shift is not None:
+        c, s = math.cos(yaw), math.sin(yaw)
+        dv = np.array([c * shift[0] + s * shift[1], -s * shift[0] + c * shift[1]])
+        tags = [dataclasses.replace(t, vTt=t.vTt + np.array([*dv, 0.0])) for t in tags]
+    if keep_slots:
+        others = tuple(t for t in frame.tags if t.tag_id != tag_id)
+        return dataclasses.replace(frame, tags=others + tuple(tags))
+    return dataclasses.replace(frame, slots=(), tags=tuple(tags), markings=())
+
+
+@pytest.mark.parametrize("lone_tag_after", [1.0, 0.0])
+def test_a_kidnap_that_one_tag_alone_sees_is_recovered(sim, lone_tag_after):
+    """From frame k - 25 on the car sees one tag and nothing else; at k it is kidnapped 10 m.
+    The tag contradicts it at every check; once no slot or tag has been applied for
+    ``lone_tag_after`` s, the tag alone may move it (0: never, the car coasts on)."""
+    k, tag_id = 160, 418
+    seen = [any(t.tag_id == tag_id for t in f.tags) for f in sim.noisy[k - 25 : k + 30]]
+    assert np.mean(seen) > 0.9  # the tag is in (almost) every frame
+    frames = list(sim.noisy[: k - 25]) + [_only_tag(f, tag_id) for f in sim.noisy[k - 25 : k + 50]]
+    loc, estimates = _run(sim, frames=frames[:k], lone_tag_after=lone_tag_after)
+    loc.filter.x[:2] += [10.0, 0.0]
+    after = [loc.step(f) for f in frames[k:]]
+    pos, _ = _errors(sim, [*estimates, *after])
+    if lone_tag_after:
+        back = next(i for i in range(k, len(pos)) if pos[i] < 0.3)
+        assert sim.noisy[back].t - sim.noisy[k].t < 3.0
+        assert "relocalized" in {e.status for e in after[: back - k + 1]}
+    else:
+        assert np.all(pos[k:] > 9)
+        assert {e.status for e in after} == {"coasting"}
+
+
+def test_a_moved_tag_seen_alone_misleads_the_car_only_until_slots_return(sim):
+    """Tag 418 moved 3 m; the car sees it alone for 4.5 s, so it may jump there, but the
+    slots put it back, and the tag, rejected where they are applied, is suspect: it no
+    longer takes part in global fixes."""
+    k, tag_id = 160, 418
+    poses = sim.frame_poses
+    frames = (
+        list(sim.noisy[: k - 25])
+        + [_only_tag(sim.noisy[i], tag_id, (3.0, 0.0), poses[i, 2]) for i in range(k - 25, k + 20)]
+        + [_only_tag(sim.noisy[i], tag_id, (3.0, 0.0), poses[i, 2], keep_slots=True)
+           for i in range(k + 20, 300)]
+    )
+    loc, estimates = _run(sim, frames=frames)
+    pos, _ = _errors(sim, estimates)
+    assert pos[k - 25 : k + 20].max() > 2  # the jump: the tag alone was all it saw
+    back = next(i for i in range(k + 20, len(pos)) if np.all(pos[i:] < 0.1))
+    assert sim.noisy[back].t - sim.noisy[k + 20].t < 3.0
+    assert tag_id in {key[1] for key in loc._suspect_tags}
 
 
 def test_markings_alone_keep_it_on_track(sim):
