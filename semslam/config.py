@@ -475,6 +475,12 @@ def load_config(path: Path | None = None) -> SemslamConfig:
         data = parse_json(read_text(path, ConfigError), os.fspath(path), ConfigError)
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: a config file holds one JSON object")
+        # only the sections: other keys would reach BaseSettings' own keyword arguments
+        # (``_cli_parse_args``, ``_env_file``, ``_secrets_dir``...) and change how it loads
+        unknown = sorted(key for key in data if key not in SemslamConfig.model_fields)
+        if unknown:
+            raise ConfigError(f"{path}: {unknown[0]}: not a setting semslam knows "
+                              "(`semslam dump-config` lists them)")
     where = str(path) if path is not None else "configuration"
     return _build(_merged(data, _environment()), where)
 

@@ -35,9 +35,46 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return obj
 
 
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
+
+
 def loads(text: str) -> Any:
-    """``json.loads`` that refuses an object with a key twice (ValueError naming the key)."""
-    return json.loads(text, object_pairs_hook=_unique_keys)
+    """``json.loads`` that refuses an object with a key twice, or a string holding a lone
+    UTF-16 surrogate (``"\\ud800"``: no Unicode text; no UTF-8 writer takes it), with a
+    ValueError naming the key or the string's pointer."""
+    value = json.loads(text, object_pairs_hook=_unique_keys)
+    if _SURROGATE_ESCAPE.search(text) is not None:  # only escapes make one
+        pointer = _lone_surrogate(value)
+        if pointer is not None:
+            raise ValueError(f"{pointer or '(top level)'}: a string holds a lone surrogate "
+                             "(a \\ud800-\\udfff escape outside a pair), not Unicode text")
+    return value
+
+
+def _lone_surrogate(value: Any) -> str | None:
+    """The pointer of the first string or key in ``value`` that is not valid Unicode."""
+    stack: list[tuple[str, Any]] = [("", value)]
+    while stack:
+        path, item = stack.pop()
+        if isinstance(item, str):
+            if not item.isascii() and not _encodable(item):
+                return path
+        elif isinstance(item, dict):
+            for key in item:
+                if not key.isascii() and not _encodable(key):
+                    return _join(path, key.encode("utf-8", "replace").decode())
+            stack.extend((_join(path, k), v) for k, v in reversed(list(item.items())))
+        elif isinstance(item, list):
+            stack.extend((_join(path, i), v) for i, v in reversed(list(enumerate(item))))
+    return None
+
+
+def _encodable(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def parse_json(text: str, source: str, error: type[SemslamError]) -> Any:

@@ -3,8 +3,10 @@ files of a folder."""
 
 from __future__ import annotations
 
+import io
 import os
 import struct
+import warnings
 import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,6 +26,32 @@ _JPEG_TAIL = 1024
 """Bytes at a JPEG file's end searched for its end-of-image marker (writers may pad after it)."""
 
 _PNG_START = b"\x89PNG\r\n\x1a\n"
+
+MAX_IMAGE_PIXELS = 1 << 26
+"""Most pixels (width x height) an image file may declare: 8192 x 8192, four times semslam's
+largest top view. A JPEG or RLE BMP of a few hundred bytes can declare 30000 x 30000, which
+OpenCV decodes (filling what the file lacks) into 2.7 GB in seconds."""
+
+
+def declared_pixel_problem(data: bytes) -> str | None:
+    """Why the size an image file's header declares is more than :data:`MAX_IMAGE_PIXELS`
+    (one phrase), or None. Pillow reads the header only; a format it does not know, or a
+    header it cannot read, is left to OpenCV."""
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as im:
+                width, height = im.size
+    except Image.DecompressionBombError:  # Pillow's own limit, beyond ours
+        return f"its header claims more pixels than semslam decodes ({MAX_IMAGE_PIXELS:,})"
+    except Exception:  # noqa: BLE001 - not an image Pillow reads: OpenCV decides
+        return None
+    if width * height > MAX_IMAGE_PIXELS:
+        return (f"its header claims more pixels than semslam decodes ({width} x {height} > "
+                f"{MAX_IMAGE_PIXELS:,})")
+    return None
 
 
 def png_problem(data: bytes) -> str | None:
@@ -59,8 +87,8 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
 
     Raises:
         FormatError: the file is missing, not an image OpenCV can read (or larger than it
-            decodes), or a JPEG cut short (OpenCV would decode what is there and fill the
-            rest with grey).
+            decodes), its header declares more than :data:`MAX_IMAGE_PIXELS`, or a JPEG cut
+            short (OpenCV would decode what is there and fill the rest with grey).
     """
     p = Path(path)
     if not p.is_file():
@@ -70,6 +98,8 @@ def read_image(path: str | os.PathLike[str], grey: bool = False) -> np.ndarray:
         raise FormatError(f"{p}: JPEG cut short (no end-of-image marker), {len(data)} bytes")
     if data.startswith(_PNG_START) and (problem := png_problem(data)) is not None:
         raise FormatError(f"{p}: broken PNG: {problem}")
+    if (problem := declared_pixel_problem(data)) is not None:
+        raise FormatError(f"{p}: {problem}")
     image = None
     if data:  # imdecode asserts on an empty buffer
         with _opencv_quiet():  # its own warnings ("can not handle 32-bit samples") before ours
@@ -118,4 +148,5 @@ def image_files(path: str | os.PathLike[str]) -> list[str | os.PathLike[str]]:
     return files
 
 
-__all__ = ["IMAGE_SUFFIXES", "image_files", "png_problem", "read_image"]
+__all__ = ["IMAGE_SUFFIXES", "MAX_IMAGE_PIXELS", "declared_pixel_problem", "image_files",
+           "png_problem", "read_image"]

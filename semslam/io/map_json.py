@@ -124,7 +124,11 @@ def check_map_document(
     """Check a map document without building the map (see :func:`map_from_dict`)."""
     if not isinstance(document, dict):
         raise MapError(f"{source}: expected a JSON object at the top level")
-    bad = find_non_finite(document) if scan_non_finite else None
+    # the metadata is scanned whatever the text held: a float literal of over 308 digits
+    # reads as infinity without a token may_hold_non_finite looks for, and no typed field
+    # checks the free-form metadata
+    bad = find_non_finite(document if scan_non_finite else document.get("metadata"),
+                          "" if scan_non_finite else "metadata")
     if bad is not None:
         raise MapError(f"{source}: {non_finite_message(*bad)}")
     fmt = document.get("format")
