@@ -143,6 +143,11 @@ ConfigOption = Annotated[
     Path | None,
     typer.Option("--config", help="JSON file overriding defaults (see `semslam dump-config`)."),
 ]
+ProgressOption = Annotated[
+    bool | None,
+    typer.Option("--progress/--no-progress",
+                 help="Progress bar on stderr (default: only when stderr is a terminal)."),
+]
 PxPerMetreOption = Annotated[
     float | None,
     typer.Option("--px-per-m", help="Ground resolution of the top views, pixels per metre "
@@ -173,7 +178,7 @@ def simulate(
                      help="Add the tags a `semslam plan-tags` plan proposes to the world."),
     ] = None,
     config: ConfigOption = None,
-    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+    progress: ProgressOption = None,
 ) -> None:
     """Simulate a drive through a seeded garage and write it as a drive folder."""
     from semslam.config import load_config
@@ -217,7 +222,7 @@ def demo(
     preset: Annotated[PresetName, typer.Option(help="World size.")] = PresetName.garage,
     seed: Annotated[int, typer.Option(help="World seed.")] = 1,
     config: ConfigOption = None,
-    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+    progress: ProgressOption = None,
 ) -> None:
     """The main job in one command: two simulated drives, mapped and localized, evaluated.
 
@@ -262,7 +267,7 @@ def map_command(
                      "the config's."),
     ] = None,
     config: ConfigOption = None,
-    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+    progress: ProgressOption = None,
 ) -> None:
     """Build the semantic map of a drive: slots with IDs and tags on a robust factor graph."""
     from semslam.config import load_config, with_overrides
@@ -312,7 +317,7 @@ def localize(
                      "the config's."),
     ] = None,
     config: ConfigOption = None,
-    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+    progress: ProgressOption = None,
 ) -> None:
     """Track a drive against a map, frame by frame: pose, covariance and status."""
     from semslam.config import load_config, with_overrides
@@ -800,7 +805,7 @@ def import_garage_bev_command(
         int, typer.Option(help="Mask rows ignored at the top and bottom (less reliable).")
     ] = 300,
     every: Annotated[int, typer.Option(help="Use every n-th mask (quick looks).")] = 1,
-    progress: Annotated[bool | None, typer.Option("--progress/--no-progress")] = None,
+    progress: ProgressOption = None,
 ) -> None:
     """A real drive of bird's-eye masks + odometry (3D-SMLoc's garage) as a drive folder.
 
