@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import write_drive
 
-from semslam.errors import FormatError, MapError
+from semslam.errors import FormatError
 from semslam.io import load_map, load_rig, read_drive_info, read_observations
 from semslam.io.drive import DRIVE_JSON, RIG_JSON, WORLD_JSON
 
@@ -21,38 +21,27 @@ def _replace_once(path: Path, old: str, new: str) -> None:
     path.write_text(text.replace(old, new, 1))
 
 
-def test_a_rig_camera_name_with_a_lone_surrogate_is_refused(tmp_path: Path) -> None:
-    write_drive(tmp_path)
-    _replace_once(tmp_path / RIG_JSON, '"name": "front"', '"name": "\\ud800"')
-    with pytest.raises(FormatError, match=r"rig.json: not valid JSON: cameras/0/name: .*surrogate"):
-        load_rig(tmp_path / RIG_JSON)
-
-
-def test_a_map_label_or_metadata_with_a_lone_surrogate_is_refused(tmp_path: Path) -> None:
-    write_drive(tmp_path)
-    _replace_once(tmp_path / WORLD_JSON, '"B17"', '"B\\udc0017"')
-    with pytest.raises(MapError, match=r"slots/0/label: .*lone surrogate"):
-        load_map(tmp_path / WORLD_JSON)
-
-
-def test_a_drive_name_and_an_observation_label_with_a_lone_surrogate_are_refused(
-    tmp_path: Path,
+@pytest.mark.parametrize(
+    ("name", "old", "new", "read", "error"),
+    [
+        (RIG_JSON, '"name": "front"', '"name": "\\ud800"', load_rig,
+         r"rig.json: not valid JSON: cameras/0/name: .*surrogate"),
+        (WORLD_JSON, '"B17"', '"B\\udc0017"', load_map, r"slots/0/label: .*lone surrogate"),
+        (DRIVE_JSON, '"name": "test"', '"name": "\\ud83d"', read_drive_info,
+         r"name: .*lone surrogate"),
+        ("observations/exact.jsonl", '"label":"A3"', '"label":"\\udfff"', read_observations,
+         r"exact.jsonl line 1: not valid JSON: slots/0/label"),
+        (DRIVE_JSON, '"source": {', '"source": {"\\ud800": 1, ', read_drive_info,
+         r"source/\?: .*lone surrogate"),  # a key
+    ],
+)
+def test_a_string_or_key_with_a_lone_surrogate_is_refused(
+    tmp_path: Path, name: str, old: str, new: str, read, error: str
 ) -> None:
     write_drive(tmp_path)
-    _replace_once(tmp_path / DRIVE_JSON, '"name": "test"', '"name": "\\ud83d"')
-    with pytest.raises(FormatError, match=r"name: .*lone surrogate"):
-        read_drive_info(tmp_path / DRIVE_JSON)
-    obs = tmp_path / "observations" / "exact.jsonl"
-    _replace_once(obs, '"label":"A3"', '"label":"\\udfff"')
-    with pytest.raises(FormatError, match=r"exact.jsonl line 1: not valid JSON: slots/0/label"):
-        read_observations(obs)
-
-
-def test_a_key_with_a_lone_surrogate_is_refused(tmp_path: Path) -> None:
-    write_drive(tmp_path)
-    _replace_once(tmp_path / DRIVE_JSON, '"source": {', '"source": {"\\ud800": 1, ')
-    with pytest.raises(FormatError, match=r"source/\?: .*lone surrogate"):
-        read_drive_info(tmp_path / DRIVE_JSON)
+    _replace_once(tmp_path / name, old, new)
+    with pytest.raises(FormatError, match=error):
+        read(tmp_path / name)
 
 
 def test_an_escaped_surrogate_pair_still_reads(tmp_path: Path) -> None:
