@@ -9,6 +9,7 @@ radians.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
@@ -16,6 +17,12 @@ from typing import Any
 import numpy as np
 
 from semslam.geometry import FloatArray, rotation_variance
+
+MAX_ORIENTATION_VARIANCE = math.pi**2 / 3
+"""rad^2: the variance of a heading spread evenly over a whole turn. A larger orientation
+variance (a map's ``heading_variance`` of 1e12, or corner covariances of 1e12 m^2 on a small
+slot) says no more than this, and the localizer's floor of the heading on it would leave its
+innovation covariances singular."""
 
 
 class SlotKind(StrEnum):
@@ -168,13 +175,14 @@ class Slot:
     @property
     def orientation_variance(self) -> float:
         """``heading_variance``, or, when the map gives none, the rotation variance of the
-        corners taken as independent (larger: correlated corner errors partly cancel)."""
+        corners taken as independent (larger: correlated corner errors partly cancel); at most
+        :data:`MAX_ORIENTATION_VARIANCE` (a heading not known at all)."""
         if self.heading_variance is not None:
-            return float(self.heading_variance)
+            return min(float(self.heading_variance), MAX_ORIENTATION_VARIANCE)
         corners = np.asarray(self.corners, dtype=float)
         if not np.ptp(corners, axis=0).any():  # a degenerate slot: no orientation to doubt
             return 0.0
-        return rotation_variance(corners, self.corner_covariances)
+        return min(rotation_variance(corners, self.corner_covariances), MAX_ORIENTATION_VARIANCE)
 
 
 @dataclass(frozen=True, eq=False)

@@ -52,6 +52,11 @@ _FLOAT_COLUMNS = TRACK_HEADER[:10]
 _UPPER = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))  # row-major upper triangle
 _VARIANCES = {"cov_xx", "cov_yy", "cov_yawyaw"}
 
+MIN_VARIANCE = 1e-30
+"""Smallest non-zero variance of a track (m^2, rad^2): a sigma of 1e-15 m or rad. No estimate is
+that sure; below it (1e-315, a denormal) the NEES of an evaluation overflows to infinity and
+NaN. 0 is kept: it stands for a frame without a covariance."""
+
 
 @dataclass(frozen=True, eq=False)
 class Track:
@@ -120,6 +125,9 @@ def write_track_csv(path: str | os.PathLike[str], track: Track) -> None:
         bad = np.flatnonzero(columns[column] < 0)
         if bad.size:
             raise FormatError(f"{name}: frame {bad[0]}: {column} is negative")
+        tiny = np.flatnonzero((columns[column] > 0) & (columns[column] < MIN_VARIANCE))
+        if tiny.size:
+            raise FormatError(f"{name}: frame {tiny[0]}: {_tiny(column, columns[column][tiny[0]])}")
     counts = {"associated": associated, "rejected": rejected}
     for column, values in counts.items():
         listed = values.tolist()
@@ -167,6 +175,8 @@ def read_track_csv(path: str | os.PathLike[str]) -> Track:
             floats[i, j] = parse_number(fields[j], where, column, FormatError)
             if column in _VARIANCES and floats[i, j] < 0:
                 raise FormatError(f"{where}: {column} is negative ({fields[j].strip()})")
+            if column in _VARIANCES and 0 < floats[i, j] < MIN_VARIANCE:
+                raise FormatError(f"{where}: {_tiny(column, floats[i, j])}")
         check_time_order(previous, floats[i, 0], where, FormatError)
         previous = floats[i, 0]
         s = fields[10].strip()
@@ -186,6 +196,11 @@ def read_track_csv(path: str | os.PathLike[str]) -> Track:
         associated=counts[:, 0].copy(),
         rejected=counts[:, 1].copy(),
     )
+
+
+def _tiny(column: str, value: float) -> str:
+    return (f"{column} {value:g} is below {MIN_VARIANCE:g} (no estimate is that sure; "
+            "0 stands for no covariance)")
 
 
 def _is_count(value: object) -> bool:
