@@ -358,7 +358,7 @@ def _nees(e: FloatArray, covs: FloatArray | None) -> dict[str, Any]:
             "nees_heading_mean")
     if covs is None:
         return dict.fromkeys(keys)
-    sym = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+    sym = 0.5 * covs + 0.5 * np.swapaxes(covs, 1, 2)  # halves first: 1.7e308 + 1.7e308 overflows
     finite = np.all(np.isfinite(sym), axis=(1, 2))
     pd = np.zeros(len(sym), dtype=bool)
     if finite.any():

@@ -115,6 +115,12 @@ _SHAPE_PRIORS = {  # (right angles, entrance width m, depth m, width sigma, dept
 }
 
 
+TAG_CONDITION_FLOOR = 1e-11
+"""A tag sighting's covariance gets at least this share of its largest variance on every axis
+(and 1e-8 absolutely): a sighting sure on one axis and vague on another (variances 1e-13 and
+1, say) would otherwise give a graph edge no solver can use, and one the g2o export refuses
+(condition number above 1e12)."""
+
 _REFRESH_RADIUS = 25.0  # m around the car where landmark estimates are kept current
 
 
@@ -422,7 +428,8 @@ class Mapper:
         if not self.graph.has(key):
             self.graph.add_pose(key, compose(pose, tag.vTt))
         # the sighting's covariance is along the vehicle's axes, the between error along the tag's
-        cov = rotate_pose_covariance(tag.covariance, -tag.vTt[2]) + np.eye(3) * 1e-8
+        cov = rotate_pose_covariance(tag.covariance, -tag.vTt[2])
+        cov = cov + np.eye(3) * max(1e-8, TAG_CONDITION_FLOOR * float(np.linalg.eigvalsh(cov)[-1]))
         self.tag_edges.append((k, tag.tag_id, np.asarray(tag.vTt, dtype=float), cov))
         # trusted, no null hypothesis: on the demo drive a null on tags dropped good image
         # tags (map 0.057 -> 0.071 m); the tag detector drops the ambiguous ones itself

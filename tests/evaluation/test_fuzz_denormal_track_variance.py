@@ -5,6 +5,7 @@ semantic fuzzing of the evaluation)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -52,3 +53,16 @@ def test_zero_and_small_variances_still_read(tmp_path):
     _write_run(tmp_path, "1e-315")
     with pytest.raises(FormatError, match=r"run\.csv line 2: cov_\w+ 1e-315 is below 1e-30"):
         read_track_csv(tmp_path / "run.csv")
+
+
+def test_a_variance_near_the_largest_float_gives_a_finite_nees_without_warnings(tmp_path):
+    """At the other end, variances of 1.7e308 overflowed in the covariance's symmetrisation
+    (``cov + cov.T``: a RuntimeWarning printed above the JSON); the pose is simply unknown."""
+    traj, gt = _write_run(tmp_path, "1.7e308")
+    with np.errstate(all="raise"):
+        result = CliRunner().invoke(app, ["evaluate", "trajectory", str(traj), "--truth",
+                                          str(gt), "--json"])
+    assert result.exit_code == 0, (result.output, result.exception)
+    assert "Warning" not in result.stderr
+    report = json.loads(result.stdout)
+    assert report["nees_frames"] == 30 and 0.0 <= report["nees_mean"] < 1e-100

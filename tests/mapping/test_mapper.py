@@ -251,6 +251,27 @@ def test_one_tag_id_at_two_places_keeps_the_first_and_reports_the_other(small):
     assert evaluate_map(kept.map, _seen_truth(small)).corner_rmse_m < 0.06
 
 
+def test_a_tag_sighting_sure_on_one_axis_only_still_exports_a_readable_graph(small):
+    """A sighting's covariance may be semi-definite (variances 1e6, 1e-9, 1): with only an
+    absolute 1e-8 added its graph edge had condition number 9e13, and ``semslam map`` ended
+    with the g2o export refusing its own output (found by semantic fuzzing). The edge now gets
+    a floor relative to its largest variance; the slots are mapped as before."""
+    from semslam.io.g2o import format_g2o, parse_g2o
+    from semslam.mapping.export import to_pose_graph
+
+    lopsided = np.diag([1e6, 1e-9, 1.0])
+    frames = [
+        FrameObservations(f.t, f.slots, tuple(dataclasses.replace(t, covariance=lopsided)
+                                              for t in f.tags), f.markings)
+        for f in small.exact
+    ]
+    result = _map(small, frames)
+    assert result.map.tags
+    graph = parse_g2o(format_g2o(to_pose_graph(result)))
+    assert len(graph.edges) > 0
+    assert evaluate_map(result.map, _seen_truth(small)).corner_rmse_m < 0.06
+
+
 def test_an_unsolvable_graph_is_a_one_line_mapping_error():
     import gtsam
 
