@@ -19,6 +19,7 @@ from semslam.io._csv import check_columns, read_table
 from semslam.io._rows import check_time_order, check_times, parse_number
 from semslam.io.atomic import atomic_write_text
 from semslam.io.errors import DriveFormatError
+from semslam.io.tum import MAX_TIME
 
 _COLUMN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
@@ -45,14 +46,19 @@ def write_frames(path: str | os.PathLike[str], frames: FrameIndex) -> None:
 
     Raises:
         DriveFormatError: a column of the wrong length or with a bad name, an
-            absolute path or one with ',' or a line break, NaN times or times
-            not strictly increasing; nothing is written.
+            absolute path or one with ',' or a line break, NaN times, times beyond
+            ``MAX_TIME`` or not strictly increasing; nothing is written.
     """
     name = os.fspath(path)
     t = np.asarray(frames.t, dtype=float)
     if t.ndim != 1:
         raise DriveFormatError(f"{name}: t must be an (N,) array, got shape {t.shape}")
     check_times(t, path, DriveFormatError, "frame")
+    beyond = np.flatnonzero(np.abs(t) > MAX_TIME)
+    if beyond.size:  # read_frames would refuse it
+        k = int(beyond[0])
+        raise DriveFormatError(f"{name}: frame {k}: t {t[k]:g} s is out of range "
+                               f"(|t| <= {MAX_TIME:g} s)")
     columns = list(frames.images)
     for column in columns:
         if column == "t" or not _COLUMN_NAME.match(column):
@@ -78,8 +84,10 @@ def read_frames(path: str | os.PathLike[str]) -> FrameIndex:
     Raises:
         DriveFormatError: missing or empty file, a header not starting with
             ``t`` or with bad or repeated column names, wrong column count,
-            a bad time, time not strictly increasing, an absolute path or one
-            leaving the drive folder; the message names the file and line.
+            a bad time (or one beyond :data:`semslam.io.tum.MAX_TIME`, 1e11 s: the
+            trajectories written per frame could not hold it), time not strictly increasing,
+            an absolute path or one leaving the drive folder; the message names the file and
+            line.
     """
     name = os.fspath(path)
     header, rows = read_table(path, DriveFormatError)
@@ -96,7 +104,7 @@ def read_frames(path: str | os.PathLike[str]) -> FrameIndex:
     for i, (lineno, fields) in enumerate(rows):
         where = f"{name} line {lineno}"
         check_columns(fields, header, where, DriveFormatError)
-        t[i] = parse_number(fields[0], where, "t", DriveFormatError)
+        t[i] = parse_number(fields[0], where, "t", DriveFormatError, MAX_TIME, "s")
         check_time_order(previous, t[i], where, DriveFormatError)
         previous = t[i]
         for column, value in zip(header[1:], fields[1:], strict=True):

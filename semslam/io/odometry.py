@@ -12,9 +12,16 @@ import numpy as np
 from semslam.errors import DriveError
 from semslam.geometry import FloatArray
 from semslam.io._csv import check_columns, check_header, read_table
-from semslam.io._rows import check_finite_columns, check_time_order, check_times, parse_number
+from semslam.io._rows import (
+    check_finite_columns,
+    check_time_order,
+    check_times,
+    format_time,
+    parse_number,
+)
 from semslam.io.atomic import atomic_write_text
 from semslam.io.errors import DriveFormatError
+from semslam.io.tum import MAX_TIME
 
 ODOMETRY_HEADER = ["t", "speed", "yaw_rate"]
 
@@ -50,8 +57,9 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
 
     Raises:
         DriveFormatError: arrays of different lengths, NaN/infinity, an impossible
-            speed or yaw rate (see :func:`read_odometry`), time not strictly
-            increasing, or a gap in the samples; nothing is written.
+            speed or yaw rate or a time beyond ``MAX_TIME`` (see :func:`read_odometry`),
+            time not strictly increasing, a gap in the samples or samples faster than
+            :data:`MAX_RATE`; nothing is written.
     """
     columns = {
         "t": np.asarray(odometry.t, dtype=float),
@@ -66,7 +74,9 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
     check_times(columns["t"], path, DriveFormatError, "sample")
+    _check_time_range(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
     check_gaps(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
+    check_rate(columns["t"], os.fspath(path))
     for column, (limit, _unit) in _LIMITS.items():
         over = np.flatnonzero(np.abs(columns[column]) > limit)
         if over.size:
@@ -84,13 +94,15 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
     """Read odometry.csv.
 
     Physically impossible values are refused: ``|speed|`` above :data:`MAX_SPEED`
-    (100 m/s) or ``|yaw_rate|`` above :data:`MAX_YAW_RATE` (20 rad/s).
+    (100 m/s) or ``|yaw_rate|`` above :data:`MAX_YAW_RATE` (20 rad/s); so is a time beyond
+    :data:`semslam.io.tum.MAX_TIME` (1e11 s), which no trajectory written from it could hold.
 
     Raises:
         DriveFormatError: missing or empty file, wrong header, wrong column
             count, a non-number, NaN/infinity, an impossible speed or yaw rate,
-            time not strictly increasing, or a gap in the samples (more than
-            :data:`MAX_GAP_PERIODS` median intervals and more than :data:`MIN_GAP_S`);
+            time not strictly increasing, a gap in the samples (more than
+            :data:`MAX_GAP_PERIODS` median intervals and more than :data:`MIN_GAP_S`) or
+            samples faster than :data:`MAX_RATE` (2000 Hz, their median interval);
             e.g. ``odometry.csv line 17: speed is NaN``.
     """
     name = os.fspath(path)
@@ -102,12 +114,14 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
         where = f"{name} line {lineno}"
         check_columns(fields, ODOMETRY_HEADER, where, DriveFormatError)
         for j, column in enumerate(ODOMETRY_HEADER):
-            data[i, j] = parse_number(fields[j], where, column, DriveFormatError)
+            within, unit = (MAX_TIME, "s") if column == "t" else (math.inf, "")
+            data[i, j] = parse_number(fields[j], where, column, DriveFormatError, within, unit)
             if column in _LIMITS and abs(data[i, j]) > _LIMITS[column][0]:
                 _refuse(where, column, float(data[i, j]))
         check_time_order(previous, data[i, 0], where, DriveFormatError)
         previous = data[i, 0]
     check_gaps(data[:, 0], lambda k: f"{name} line {rows[k][0]}")
+    check_rate(data[:, 0], name)
     return Odometry(t=data[:, 0].copy(), speed=data[:, 1].copy(), yaw_rate=data[:, 2].copy())
 
 
@@ -132,6 +146,34 @@ def check_gaps(t: FloatArray, where: Callable[[int], str]) -> None:
             f"{where(k)}: {dt[k - 1]:.3f} s since the sample before (the median "
             f"interval is {period:.3f} s): odometry is missing there"
         )
+
+
+MAX_RATE = 2000.0
+"""Highest odometry rate read, Hz (a median interval under 0.5 ms is refused: twice the
+simulator's highest ``odometry_rate``, room for a recording's jitter): the localizer predicts
+and updates its filter at every sample (80 us each), so a 94 s drive sampled at 50 kHz took
+over 2 minutes to localize."""
+
+
+def check_rate(t: FloatArray, name: str) -> None:
+    """Refuse odometry times ``t`` (s) sampled faster than :data:`MAX_RATE` (their median
+    interval); ``name`` is the file."""
+    if len(t) < 2:
+        return
+    period = float(np.median(np.diff(t)))
+    if period < 1.0 / MAX_RATE:
+        raise DriveFormatError(
+            f"{name}: samples {period * 1e3:.3g} ms apart (the median interval), over "
+            f"{MAX_RATE:g} Hz: resample the odometry to {MAX_RATE:g} Hz or less"
+        )
+
+
+def _check_time_range(t: FloatArray, where: Callable[[int], str]) -> None:
+    """Refuse (before writing) a time :func:`read_odometry` would refuse: beyond ``MAX_TIME``."""
+    beyond = np.flatnonzero(np.abs(t) > MAX_TIME)
+    if beyond.size:
+        k = int(beyond[0])
+        raise DriveFormatError(f"{where(k)}: t {t[k]:g} s is out of range (|t| <= {MAX_TIME:g} s)")
 
 
 def _refuse(where: str, column: str, value: float) -> None:
@@ -167,8 +209,10 @@ def check_covered(
     first, last, period = span
     if t > last + period + 1e-6:
         raise DriveError(
-            f"{what} reach {t:.3f} s, after the odometry (ends at {last:.3f} s): "
+            f"{what} reach {format_time(t)} s, after the odometry (ends at {format_time(last)} s): "
             "is odometry.csv cut short?"
         )
     if start and t < first - 1e-6:
-        raise DriveError(f"{what} start at {t:.3f} s, before the odometry ({first:.3f} s)")
+        raise DriveError(
+            f"{what} start at {format_time(t)} s, before the odometry ({format_time(first)} s)"
+        )

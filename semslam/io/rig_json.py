@@ -29,6 +29,12 @@ from semslam.rig import Camera, CameraModel, Rig, TopviewSpec, VehicleSpec
 RIG_FORMAT = "semslam-rig"
 RIG_VERSION = 1
 _PINHOLE_D = (0, 4, 5, 8, 12, 14)
+MIN_FOCAL_PX = 1.0
+"""Smallest ``fx``, ``fy`` read, pixels (as ``semslam tags --intrinsics``): a focal length of
+1e-300 px passed ``> 0`` and the tag covariance divided by ``fx * fy``, underflowed to 0."""
+MAX_PIXELS = 1e6
+"""Bound on every entry of ``K`` (px) and every distortion coefficient (as ``semslam tags``
+bounds ``--intrinsics`` and ``--distortion``)."""
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
@@ -117,10 +123,14 @@ def _camera_to_dict(camera: Camera) -> dict[str, Any]:
 def _camera_from_field(f: Field) -> Camera:
     f.only("name", "model", "K", "D", "size", "T_vehicle_camera")
     model = f["model"].choice(CameraModel)
-    K = f["K"].array((3, 3))
+    K = f["K"].array((3, 3), within=MAX_PIXELS)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or np.any(K[2] != (0.0, 0.0, 1.0)):
         f["K"].fail("expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    D = f["D"].array((None,))
+    if min(K[0, 0], K[1, 1]) < MIN_FOCAL_PX:
+        f["K"].fail(
+            f"focal lengths must be at least {MIN_FOCAL_PX:g} px, got {K[0, 0]:g}, {K[1, 1]:g}"
+        )
+    D = f["D"].array((None,), within=MAX_PIXELS)
     allowed = (4,) if model is CameraModel.FISHEYE else _PINHOLE_D
     if D.shape[0] not in allowed:
         f["D"].fail(

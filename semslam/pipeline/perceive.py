@@ -68,7 +68,10 @@ def _perceive_frames(indices: list[int]) -> list[FrameObservations]:
             if (image.shape[1], image.shape[0]) != tuple(camera.size):
                 raise FormatError(f"{path}: {image.shape[1]} x {image.shape[0]} px, but rig.json "
                                   f"gives the front camera {camera.size[0]} x {camera.size[1]}")
-            tags = observe_tags(image, camera, _WORKER["tag_settings"])
+            try:
+                tags = observe_tags(image, camera, _WORKER["tag_settings"])
+            except SemslamError as e:  # name the image and the camera: the detector knows neither
+                raise PerceptionError(f"{path}: {e} (camera 'front' of rig.json)") from None
         out.append(FrameObservations(float(frames.t[i]), slots, tags, markings))
     return out
 
