@@ -41,15 +41,24 @@ def parse_number(
 
 
 def check_time_order(
-    previous: float | None, t: float, where: str, error: type[SemslamError]
+    previous: float | None, t: float, where: str, error: type[SemslamError],
+    microseconds: bool = False,
 ) -> None:
-    """Refuse a time stamp that does not come strictly after ``previous``.
+    """Refuse a time stamp that does not come strictly after ``previous``; with
+    ``microseconds``, also one that repeats ``previous`` to the microsecond (a frame's time:
+    the trajectories written per frame hold times to the microsecond, as TUM files do).
 
     Raises:
-        error: ``"<where>: time goes backwards (12.300 after 12.400)"`` or
-            ``"<where>: time repeats (12.400)"``.
+        error: ``"<where>: time goes backwards (12.300 after 12.400)"``,
+            ``"<where>: time repeats (12.400)"`` or ``"<where>: time 12.400000 repeats
+            the previous frame's to the microsecond"``.
     """
-    if previous is None or t > previous:
+    if previous is None:
+        return
+    if t > previous:
+        if microseconds and f"{t:.6f}" == f"{previous:.6f}":
+            raise error(f"{where}: time {t:.6f} repeats the previous frame's to the "
+                        "microsecond (frame times are written to the microsecond)")
         return
     if t == previous:
         raise error(f"{where}: time repeats ({format_time(t)})")

@@ -54,6 +54,9 @@ def write_frames(path: str | os.PathLike[str], frames: FrameIndex) -> None:
     if t.ndim != 1:
         raise DriveFormatError(f"{name}: t must be an (N,) array, got shape {t.shape}")
     check_times(t, path, DriveFormatError, "frame")
+    for k in range(1, len(t)):  # read_frames refuses a time repeating to the microsecond
+        check_time_order(float(t[k - 1]), float(t[k]), f"{name}: frame {k}", DriveFormatError,
+                         microseconds=True)
     beyond = np.flatnonzero(np.abs(t) > MAX_TIME)
     if beyond.size:  # read_frames would refuse it
         k = int(beyond[0])
@@ -105,7 +108,7 @@ def read_frames(path: str | os.PathLike[str]) -> FrameIndex:
         where = f"{name} line {lineno}"
         check_columns(fields, header, where, DriveFormatError)
         t[i] = parse_number(fields[0], where, "t", DriveFormatError, MAX_TIME, "s")
-        check_time_order(previous, t[i], where, DriveFormatError)
+        check_time_order(previous, t[i], where, DriveFormatError, microseconds=True)
         previous = t[i]
         for column, value in zip(header[1:], fields[1:], strict=True):
             value = value.strip()

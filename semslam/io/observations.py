@@ -104,7 +104,8 @@ def write_observations(path: str | os.PathLike[str], frames: Iterable[FrameObser
     for i, frame in enumerate(frames):
         document = frame_observations_to_dict(frame)
         frame_observations_from_dict(document, f"{name}: frame {i}")  # would it read back?
-        check_time_order(previous, document["t"], f"{name}: frame {i}", FormatError)
+        check_time_order(previous, document["t"], f"{name}: frame {i}", FormatError,
+                         microseconds=True)
         previous = document["t"]
         lines.append(json.dumps(document, separators=(",", ":"), allow_nan=False))
     atomic_write_text(path, "".join(line + "\n" for line in lines))
@@ -131,7 +132,8 @@ def read_observations(path: str | os.PathLike[str]) -> list[FrameObservations]:
         except (ValueError, RecursionError) as exc:
             raise FormatError(f"{where}: not valid JSON: {first_line(exc)}") from None
         frame = frame_observations_from_dict(document, where, may_hold_non_finite(line))
-        check_time_order(frames[-1].t if frames else None, frame.t, where, FormatError)
+        check_time_order(frames[-1].t if frames else None, frame.t, where, FormatError,
+                         microseconds=True)
         frames.append(frame)
     return frames
 
