@@ -651,3 +651,24 @@ def test_accuracy_refuses_to_write_over_the_map_it_reads(tmp_path):
     _fails(_run("accuracy", the_map, "-o", tmp_path, "--grade", "localizer"),
            "would replace", "the map it reads")
     assert the_map.read_text() == before
+
+
+def test_localize_stops_when_odometry_drives_the_estimate_past_any_trajectory(small_drive,
+                                                                                  tmp_path):
+    """Speeds of +-100 m/s sample by sample are each within the reader's bounds; the filter's
+    estimate then ran past 1,000 km and the run stopped only on writing its own trajectory
+    ("T.tum: pose 437: x 1.01e+06 is out of range"; found by semantic fuzzing). It now stops
+    at that frame, naming the drive and the odometry."""
+    drive = tmp_path / "drive"
+    shutil.copytree(small_drive, drive)
+    rows = (drive / "odometry.csv").read_text().splitlines()
+    flipped = [rows[0]] + [
+        f"{t},{100.0 if i % 2 == 0 else -100.0},{w}"
+        for i, (t, _, w) in enumerate(r.split(",") for r in rows[1:])
+    ]
+    (drive / "odometry.csv").write_text("\n".join(flipped) + "\n")
+    result = _run("localize", drive, "--map", small_drive / "world.json", "-o",
+                  tmp_path / "T.tum", "--no-progress")
+    _fails(result, "the estimate is over 1000 km from the map's origin", "100 m/s",
+           "T.tum not written")
+    assert not (tmp_path / "T.tum").exists()

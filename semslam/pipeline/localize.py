@@ -110,6 +110,7 @@ def localize_drive(
     from semslam.io import Drive, load_map, write_tum
     from semslam.io.atomic import atomic_group, atomic_write_text
     from semslam.io.track_csv import Track, write_track_csv
+    from semslam.io.tum import MAX_POSITION
     from semslam.localization.localizer import Localizer
     from semslam.localization.relocalize import MAX_SLOTS_PER_LABEL
 
@@ -129,7 +130,15 @@ def localize_drive(
     estimates = []
     with progress_bar(len(frames), "localizing", show_progress) as bar:
         for frame in frames:
-            estimates.append(localizer.step(frame))
+            estimate = localizer.step(frame)
+            if np.any(np.abs(estimate.pose[:2]) > MAX_POSITION):  # no trajectory can hold it
+                raise DriveError(
+                    f"{drive_folder}: at {estimate.t:.3f} s the estimate is over "
+                    f"{MAX_POSITION / 1e3:g} km from the map's origin; the odometry drove it "
+                    f"there (odometry.csv's speeds reach {np.max(np.abs(odometry.speed)):g} "
+                    f"m/s); {output} not written"
+                )
+            estimates.append(estimate)
             bar.update(1)
     elapsed = time.perf_counter() - started
     posed = [e for e in estimates if np.all(np.isfinite(e.pose))]
