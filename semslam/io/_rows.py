@@ -83,19 +83,31 @@ def _distinct(a: float, b: float) -> tuple[str, str]:
 
 
 def check_times(
-    t: FloatArray, path: str | os.PathLike[str], error: type[SemslamError], what: str = "row"
+    t: FloatArray, path: str | os.PathLike[str], error: type[SemslamError], what: str = "row",
+    within: float = math.inf, microseconds: bool = False,
 ) -> None:
-    """Refuse non-finite or not strictly increasing times before writing ``path``.
+    """Refuse non-finite or not strictly increasing times before writing ``path``; also
+    times beyond ``within`` seconds in magnitude, and with ``microseconds`` times repeating
+    the previous one to the microsecond (what the readers refuse, see
+    :func:`check_time_order`).
 
     Raises:
         error: ``"<path>: row 3: time goes backwards (...)"`` (rows counted from 0).
     """
     name = os.fspath(path)
     check_finite_columns({"time": t}, path, error, what)
-    stalls = np.flatnonzero(np.diff(t) <= 0)
-    if stalls.size:
-        i = int(stalls[0]) + 1
-        check_time_order(float(t[i - 1]), float(t[i]), f"{name}: {what} {i}", error)
+    beyond = np.flatnonzero(np.abs(t) > within)
+    if beyond.size:
+        k = int(beyond[0])
+        raise error(f"{name}: {what} {k}: t {t[k]:g} s is out of range (|t| <= {within:g} s)")
+    stalls = np.diff(t) <= 0
+    if microseconds and len(t) > 1:
+        stamps = np.char.mod("%.6f", t)
+        stalls |= stamps[1:] == stamps[:-1]
+    if stalls.any():
+        i = int(np.argmax(stalls)) + 1
+        check_time_order(float(t[i - 1]), float(t[i]), f"{name}: {what} {i}", error,
+                         microseconds)
 
 
 def check_finite_columns(

@@ -73,8 +73,7 @@ def write_odometry(path: str | os.PathLike[str], odometry: Odometry) -> None:
             f"got shapes {[a.shape for a in columns.values()]}"
         )
     check_finite_columns(columns, path, DriveFormatError, "sample")
-    check_times(columns["t"], path, DriveFormatError, "sample")
-    _check_time_range(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
+    check_times(columns["t"], path, DriveFormatError, "sample", within=MAX_TIME)
     check_gaps(columns["t"], lambda k: f"{os.fspath(path)}: sample {k}")
     check_rate(columns["t"], os.fspath(path))
     for column, (limit, _unit) in _LIMITS.items():
@@ -109,12 +108,12 @@ def read_odometry(path: str | os.PathLike[str]) -> Odometry:
     header, rows = read_table(path, DriveFormatError)
     check_header(header, ODOMETRY_HEADER, path, DriveFormatError)
     data = np.empty((len(rows), 3))
+    bounds = [(MAX_TIME, "s"), (math.inf, ""), (math.inf, "")]  # parse_number's within, unit
     previous: float | None = None
     for i, (lineno, fields) in enumerate(rows):
         where = f"{name} line {lineno}"
         check_columns(fields, ODOMETRY_HEADER, where, DriveFormatError)
-        for j, column in enumerate(ODOMETRY_HEADER):
-            within, unit = (MAX_TIME, "s") if column == "t" else (math.inf, "")
+        for j, (column, (within, unit)) in enumerate(zip(ODOMETRY_HEADER, bounds, strict=True)):
             data[i, j] = parse_number(fields[j], where, column, DriveFormatError, within, unit)
             if column in _LIMITS and abs(data[i, j]) > _LIMITS[column][0]:
                 _refuse(where, column, float(data[i, j]))
@@ -166,14 +165,6 @@ def check_rate(t: FloatArray, name: str) -> None:
             f"{name}: samples {period * 1e3:.3g} ms apart (the median interval), over "
             f"{MAX_RATE:g} Hz: resample the odometry to {MAX_RATE:g} Hz or less"
         )
-
-
-def _check_time_range(t: FloatArray, where: Callable[[int], str]) -> None:
-    """Refuse (before writing) a time :func:`read_odometry` would refuse: beyond ``MAX_TIME``."""
-    beyond = np.flatnonzero(np.abs(t) > MAX_TIME)
-    if beyond.size:
-        k = int(beyond[0])
-        raise DriveFormatError(f"{where(k)}: t {t[k]:g} s is out of range (|t| <= {MAX_TIME:g} s)")
 
 
 def _refuse(where: str, column: str, value: float) -> None:
