@@ -3,6 +3,7 @@
     PYTHONPATH=. python benchmarks/bench_perception.py [--worlds 100] [--per-world 5]
         [--json out.json] [--points-model OTHER.onnx] [--no-verify] [--no-entrance-check]
         [--no-mirror-look] [--no-row-completion] [--cross-share 1.0] [--worn-share 0.3]
+        [--dash-share 1.0]
 
 - simulated held-out views (world seeds 0 .. worlds-1, never trained on; other render
   seeds): marking points and slots with the ps2.0 metric (10 px, 30 deg), labels drawn
@@ -121,7 +122,8 @@ def _arrays(det):
 
 
 def simulated(perception: TopviewPerception, worlds: range, per_world: int,
-              cross_share: float = 0.0, worn_share: float = 0.0) -> dict:
+              cross_share: float = 0.0, worn_share: float = 0.0,
+              dash_share: float = 0.0) -> dict:
     total = DetectionCounts()
     dmpr = DetectionCounts()  # DMPR-PS's protocol (module docstring)
     labelled_area = DetectionCounts()  # ps2.0's labelled area (module docstring)
@@ -130,8 +132,9 @@ def simulated(perception: TopviewPerception, worlds: range, per_world: int,
     t_slots, t_ids, t_both = [], [], []
     from_row = 0  # points placed from their row (row_completion)
     paint = (PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share,
-                            worn_share=worn_share)
-             if cross_share > 0 or worn_share > 0 else None)  # the same poses either way
+                            worn_share=worn_share, dash_share=dash_share)
+             if cross_share > 0 or worn_share > 0 or dash_share > 0
+             else None)  # the same poses either way
     for sample in sample_topviews(worlds, per_world, seed=20261122, paint=paint):
         a = sample.annotation
         t0 = time.perf_counter()
@@ -288,6 +291,9 @@ def main() -> None:
     parser.add_argument("--worn-share", type=float, default=0.0,
                         help="share of the simulated separators worn away near their junction "
                         "(PaintVariation.worn_share; default none)")
+    parser.add_argument("--dash-share", type=float, default=0.0,
+                        help="share of the simulated worlds whose entrance lines are dashes "
+                        "at the junctions (PaintVariation.dash_share; default none)")
     parser.add_argument("--id-model", type=Path, default=None,
                         help="another slot-ID ONNX file (default: the shipped one)")
     args = parser.parse_args()
@@ -300,7 +306,7 @@ def main() -> None:
     perception = TopviewPerception(lines=False, slot_detector=slots,
                                    id_reader=SlotIdReader(args.id_model))
     sim = simulated(perception, range(args.first_world, args.first_world + args.worlds),
-                    args.per_world, args.cross_share, args.worn_share)
+                    args.per_world, args.cross_share, args.worn_share, args.dash_share)
     border = ps20_label_border_distances()
     sim["ps20_labelled_area"]["ps20_labels"] = len(border)
     sim["ps20_labelled_area"]["ps20_labels_min_border_px"] = round(float(border.min()), 1)

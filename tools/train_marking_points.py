@@ -65,32 +65,33 @@ def _scale_points(points: np.ndarray, src: int, dst: int) -> np.ndarray:
 
 
 def paint_variation(vary_paint: bool, cross_share: float, faint_share: float = 0.0,
-                    worn_share: float = 0.0):
+                    worn_share: float = 0.0, dash_share: float = 0.0):
     """The training worlds' :class:`PaintVariation`: ``--vary-paint`` thin lines and stub
     separators, ``--cross-share`` separators painted across the entrance line,
     ``--faint-share`` paint worn faint, ``--worn-share`` separators worn away from their
-    junctions; None: as the simulator paints them."""
+    junctions, ``--dash-share`` entrance lines painted as dashes across the junctions
+    joined by faint yellow; None: as the simulator paints them."""
     from semslam.simulation.topview_samples import PaintVariation
 
+    shares = dict(cross_share=cross_share, faint_share=faint_share, worn_share=worn_share,
+                  dash_share=dash_share)
     if vary_paint:
-        return PaintVariation(cross_share=cross_share, faint_share=faint_share,
-                              worn_share=worn_share)
-    if cross_share > 0 or faint_share > 0 or worn_share > 0:
-        return PaintVariation(thin_share=0.0, stub_share=0.0, cross_share=cross_share,
-                              faint_share=faint_share, worn_share=worn_share)
+        return PaintVariation(**shares)
+    if any(v > 0 for v in shares.values()):
+        return PaintVariation(thin_share=0.0, stub_share=0.0, **shares)
     return None
 
 
 def _render_shard(
-    args: tuple[list[int], int, int, str, bool, float, float, int, float, float],
+    args: tuple[list[int], int, int, str, bool, float, float, int, float, float, float],
 ) -> str:
     from semslam.simulation.topview_samples import sample_topviews
 
-    seeds, per_world, seed, path, vary, cross, faint, side, worn, slot_share = args
+    seeds, per_world, seed, path, vary, cross, faint, side, worn, slot_share, dash = args
     if os.path.exists(path):
         return path
     images, pts, dirs, shapes, occ, counts = [], [], [], [], [], []
-    paint = paint_variation(vary, cross, faint, worn)
+    paint = paint_variation(vary, cross, faint, worn, dash)
     for s in sample_topviews(seeds, per_world, seed, paint=paint, slot_share=slot_share):
         a = s.annotation
         images.append(cv2.resize(s.image, (side, side), interpolation=cv2.INTER_AREA))
@@ -120,6 +121,7 @@ def render_dataset(
     faint_share: float = 0.0,
     worn_share: float = 0.0,
     slot_share: float = 0.0,
+    dash_share: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Rendered, resized training views and their labels (600 px coordinates); the worlds'
     paint varied by :func:`paint_variation`; ``slot_share`` of the views taken parking into
@@ -129,14 +131,15 @@ def render_dataset(
             + ([f"cross{cross_share:g}"] if cross_share > 0 else [])
             + ([f"faint{faint_share:g}"] if faint_share > 0 else [])
             + ([f"worn{worn_share:g}"] if worn_share > 0 else [])
-            + ([f"slot{slot_share:g}"] if slot_share > 0 else []))
+            + ([f"slot{slot_share:g}"] if slot_share > 0 else [])
+            + ([f"dash{dash_share:g}"] if dash_share > 0 else []))
     key = hashlib.sha1(json.dumps(spec).encode()).hexdigest()[:10]
     chunk = 25
     jobs = []
     for k in range(0, len(seeds), chunk):
         part = seeds[k : k + chunk]
         jobs.append((part, per_world, seed + k, str(cache / f"mp_{key}_{k:05d}.npz"), vary_paint,
-                     cross_share, faint_share, INPUT, worn_share, slot_share))
+                     cross_share, faint_share, INPUT, worn_share, slot_share, dash_share))
     t0 = time.time()
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
@@ -163,7 +166,8 @@ def _training_views(args: argparse.Namespace) -> dict[str, np.ndarray]:
         seed = args.data_seed + 1000 * k
         parts.append(render_dataset(list(range(lo, hi)), args.per_world, seed, args.cache,
                                     args.workers, args.vary_paint, args.cross_share,
-                                    args.faint_share, args.worn_share, args.slot_share))
+                                    args.faint_share, args.worn_share, args.slot_share,
+                                    args.dash_share))
     return {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
 
 
@@ -784,6 +788,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="share of training separators worn away from their junctions")
     p.add_argument("--slot-share", type=float, default=0.0,
                    help="share of training views taken parking into a slot")
+    p.add_argument("--dash-share", type=float, default=0.0,
+                   help="share of training worlds whose entrance lines are dashes at the "
+                        "junctions joined by faint yellow (PaintVariation.dash_share)")
     p.add_argument("--distill", type=Path, nargs="+", default=[],
                    help="float grid files whose mean grid the net also learns (distill_loss)")
     p.add_argument("--distill-weight", type=float, default=0.5,

@@ -204,6 +204,12 @@ class TopviewRenderer:
         self._floor_img[:] = np.clip(base, 0, 255).astype(np.uint8)
         wear = rng.uniform(0.88, 1.0)
         self._paint_bgr = tuple(float(v) * wear for v in self.world.line_colour)
+        own = self.world.marking_colours  # per marking, BGR: the line colour or its own
+        self._mark_bgr = [
+            self._paint_bgr if k >= len(own) or own[k] is None
+            else tuple(float(v) * wear for v in own[k])
+            for k in range(len(self.world.markings))
+        ]
 
     def _build_rig(self, rng: np.random.Generator) -> None:
         """Four cameras, the diagonal seams, and the polar atlas maps (both directions)."""
@@ -603,8 +609,8 @@ class TopviewRenderer:
             keep = (hi > -2).all(axis=1) & (lo < n + 1).all(axis=1)
             # one fill per quad: a single fillPoly of all of them would leave the overlap
             # at every T / L junction unpainted (even-odd rule)
-            for quad in _fixed(px[keep]):
-                cv2.fillConvexPoly(S, quad, self._paint_bgr, cv2.LINE_AA, _SHIFT)
+            for k, quad in zip(idx[keep], _fixed(px[keep]), strict=True):
+                cv2.fillConvexPoly(S, quad, self._mark_bgr[k], cv2.LINE_AA, _SHIFT)
 
     def _draw_labels(self, S: np.ndarray, P: np.ndarray, mTv: np.ndarray) -> None:
         """All nearby labels as one antialiased even-odd fill of their glyph outlines."""

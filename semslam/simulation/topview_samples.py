@@ -48,7 +48,13 @@ class PaintVariation:
     worn faint: its colour pulled towards mid grey (128) by a share drawn from ``faint_mix``.
     Independently for each separator, with probability ``worn_share`` its first metres from
     the junction, a length drawn from ``worn_length``, are worn away where cars drive over
-    them (the entrance line stays: the junction shows as a bare entrance line). The
+    them (the entrance line stays: the junction shows as a bare entrance line). With
+    probability ``dash_share`` every line that is not a separator (the entrance lines) is
+    painted only as a dash across each junction on it, a length drawn from ``dash_length``
+    (m) per world, its middle up to ``dash_shift`` (m) off the junction; between the dashes,
+    with probability ``gap_share`` per world, the line is painted in ``gap_colour`` (BGR,
+    yellow) pulled towards mid grey by a share drawn from ``gap_faint``, else left bare (some
+    ps2.0 lots paint white dashes at the junctions joined by a faint yellow line). The
     junctions, and so the labels, stay where they are."""
 
     thin_share: float = 0.5
@@ -61,6 +67,12 @@ class PaintVariation:
     faint_mix: tuple[float, float] = (0.3, 0.7)
     worn_share: float = 0.0
     worn_length: tuple[float, float] = (0.5, 2.0)
+    dash_share: float = 0.0
+    dash_length: tuple[float, float] = (0.5, 1.6)
+    dash_shift: float = 0.2
+    gap_share: float = 0.7
+    gap_colour: tuple[int, int, int] = (40, 200, 230)
+    gap_faint: tuple[float, float] = (0.4, 0.85)
 
 
 def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator) -> World:
@@ -75,11 +87,18 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
         colour = tuple(int(round(c + (128.0 - c) * faint)) for c in world.line_colour)
         world = replace(world, line_colour=colour)
     worn = variation.worn_share > 0
-    if width is None and stub is None and cross is None and not worn:
+    dash = gap = None  # likewise no draw when dashes are off
+    if variation.dash_share > 0 and rng.random() < variation.dash_share:
+        dash = rng.uniform(*variation.dash_length)
+        if rng.random() < variation.gap_share:
+            mix = rng.uniform(*variation.gap_faint)
+            gap = tuple(int(round(c + (128.0 - c) * mix)) for c in variation.gap_colour)
+    if width is None and stub is None and cross is None and not worn and dash is None:
         return world
     starts = [(np.asarray(p.position, float), p.direction, p.shape is JunctionShape.T)
               for p in world.marking_points]
-    out = []
+    out: list[Marking] = []
+    colours: list[tuple[int, int, int] | None] = []
     for m in world.markings:
         a, b = np.asarray(m.a, float), np.asarray(m.b, float)
         d = b - a
@@ -88,6 +107,14 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
         junction = next((is_t for q, t, is_t in starts if np.hypot(*(a - q)) < 1e-6
                          and abs(math.remainder(heading - t, math.tau)) < 1e-6), None)
         separator = junction is not None  # from a junction along its direction
+        if dash is not None and not separator:
+            w = m.width if width is None else width
+            for (p, q), white in _dashed(a, b, [s for s, _, _ in starts], dash,
+                                         variation.dash_shift, rng):
+                if white or gap is not None:
+                    out.append(Marking(p, q, w))
+                    colours.append(None if white else gap)
+            continue
         if stub is not None and separator and length > stub:
             b = a + d * (stub / length)
         if cross is not None and junction:
@@ -99,7 +126,47 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
                 continue  # worn away whole
             a = a + (b - a) * (gone / left)
         out.append(Marking(a, b, m.width if width is None else width))
-    return replace(world, markings=tuple(out))
+        colours.append(None)
+    if all(c is None for c in colours):
+        return replace(world, markings=tuple(out))
+    return replace(world, markings=tuple(out), marking_colours=tuple(colours))
+
+
+_Piece = tuple[tuple[np.ndarray, np.ndarray], bool]
+
+
+def _dashed(a: np.ndarray, b: np.ndarray, junctions: list[np.ndarray], length: float,
+            shift: float, rng: np.random.Generator) -> list[_Piece]:
+    """The line ``a``-``b`` (m) cut into pieces: a dash ``length`` long across each of
+    ``junctions`` lying on it (within 5 cm), its middle shifted along the line by up to
+    ``shift``, flagged True; the pieces between them flagged False. Pieces in order from
+    ``a``; the whole line as one False piece when no junction lies on it."""
+    d = b - a
+    n = float(np.hypot(*d))
+    if n < 1e-9:
+        return [((a, b), False)]
+    u = d / n
+    spans = []
+    for q in junctions:
+        r = q - a
+        s = float(r @ u)
+        if abs(float(r[0] * u[1] - r[1] * u[0])) < 0.05 and -0.05 <= s <= n + 0.05:
+            mid = s + rng.uniform(-shift, shift)
+            spans.append((max(mid - length / 2, 0.0), min(mid + length / 2, n)))
+    spans.sort()
+    pieces: list[_Piece] = []
+    at = 0.0
+    for lo, hi in spans:
+        lo = max(lo, at)
+        if hi <= lo:
+            continue
+        if lo > at:
+            pieces.append(((a + u * at, a + u * lo), False))
+        pieces.append(((a + u * lo, a + u * hi), True))
+        at = hi
+    if at < n:
+        pieces.append(((a + u * at, b), False))
+    return pieces
 
 
 def random_aisle_pose(world, rng: np.random.Generator) -> np.ndarray:

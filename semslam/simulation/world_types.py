@@ -108,6 +108,9 @@ class World:
         aisles: driving lanes: the ``rows`` aisles along +x, then the cross aisles.
         bounds: (xmin, ymin, xmax, ymax) of the floor, metres.
         line_colour: paint colour BGR (white or yellow).
+        marking_colours: per marking (same order as ``markings``), a BGR colour of its own
+            or None for ``line_colour``; empty: every marking in ``line_colour``. Only the
+            top-view renderer reads it (training paint, ``topview_samples.vary_paint``).
     """
 
     preset: str
@@ -123,6 +126,7 @@ class World:
     aisles: tuple[Aisle, ...]
     bounds: tuple[float, float, float, float]
     line_colour: tuple[int, int, int]
+    marking_colours: tuple[tuple[int, int, int] | None, ...] = ()
 
     def to_map(self) -> SemanticMap:
         """The true map in the map format (for world.json and evaluation)."""

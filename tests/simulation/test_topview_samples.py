@@ -116,6 +116,60 @@ def test_vary_paint_wears_separators_away_from_their_junction() -> None:
     assert varied.marking_points == world.marking_points  # the labels stay
 
 
+def test_vary_paint_dashes_entrance_lines_across_junctions_joined_by_faint_yellow() -> None:
+    world = make_world("small", 3)
+    varied = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, dash_share=1.0,
+                                              dash_length=(1.0, 1.0), dash_shift=0.0,
+                                              gap_share=1.0, gap_faint=(0.5, 0.5)),
+                        np.random.default_rng(0))
+    assert varied.marking_points == world.marking_points  # the labels stay
+    assert len(varied.marking_colours) == len(varied.markings) > len(world.markings)
+    yellow = tuple(int(round((c + 128) / 2)) for c in (40, 200, 230))
+    assert set(varied.marking_colours) == {None, yellow}
+    junctions = [np.asarray(p.position, float) for p in world.marking_points]
+    for m, colour in zip(varied.markings, varied.marking_colours, strict=True):
+        if colour == yellow:  # a gap: no junction under it
+            a, b = np.asarray(m.a, float), np.asarray(m.b, float)
+            assert all(_distance_to_segment(q, a, b) > 0.05 for q in junctions)
+    # white dashes 1 m long centred on junctions, for most of them (not those at a line's end)
+    dashes = [m for m, c in zip(varied.markings, varied.marking_colours, strict=True)
+              if c is None and _length(m) <= 1.0 + 1e-9
+              and min(float(np.hypot(*(0.5 * (np.asarray(m.a) + np.asarray(m.b)) - q)))
+                      for q in junctions) < 1e-6]
+    assert len(dashes) >= len(world.marking_points) // 2
+    # without gaps the lines between the dashes are bare: fewer markings, none coloured
+    bare = vary_paint(world, PaintVariation(thin_share=0.0, stub_share=0.0, dash_share=1.0,
+                                            gap_share=0.0), np.random.default_rng(0))
+    assert bare.marking_colours == ()
+    assert len(bare.markings) < len(varied.markings)
+
+
+def test_the_renderer_paints_a_marking_in_its_own_colour() -> None:
+    from dataclasses import replace
+
+    from semslam.simulation.render_topview import TopviewRenderer
+
+    world = make_world("small", 3)
+    pose = random_slot_pose(world, np.random.default_rng(1))
+    plain, _ = TopviewRenderer(world, jpeg=False).render(pose, 5)
+    own = replace(world, marking_colours=(None,) * len(world.markings))
+    same, _ = TopviewRenderer(own, jpeg=False).render(pose, 5)
+    np.testing.assert_array_equal(same, plain)
+    red = replace(world, marking_colours=((0, 0, 255),) * len(world.markings))
+    other, _ = TopviewRenderer(red, jpeg=False).render(pose, 5)
+    changed = np.any(other != plain, axis=2)
+    assert changed.any()
+    # the changed paint is redder than it was
+    assert (other[changed][:, 2].astype(int) - other[changed][:, 0]).mean() > \
+        (plain[changed][:, 2].astype(int) - plain[changed][:, 0]).mean()
+
+
+def _distance_to_segment(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    d = b - a
+    t = float(np.clip((q - a) @ d / max(float(d @ d), 1e-18), 0.0, 1.0))
+    return float(np.hypot(*(a + t * d - q)))
+
+
 def test_a_slot_pose_parks_into_a_free_slot_along_its_depth() -> None:
     world = make_world("garage", 12)
     rng = np.random.default_rng(4)
