@@ -41,6 +41,9 @@ _OBSERVATION_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
 MAX_START = 1e5
 """Bound on each start-pose number (m, m, rad): a drive starting farther out would leave the
 map's own range (1e6 m) or overflow the filter's arithmetic."""
+MAX_FRAME_RATE = 2000.0
+"""Bound on ``frame_rate``, Hz: the odometry's own (``odometry.MAX_RATE``); no camera of a drive
+semslam reads is faster."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,7 +108,7 @@ def drive_info_from_dict(document: Any, source: str = "<dict>") -> DriveInfo:
     return DriveInfo(
         name=root["name"].string(nonempty=True),
         start_pose=None if start is None else start.array((3,), within=MAX_START),
-        frame_rate=root["frame_rate"].number(positive=True),
+        frame_rate=root["frame_rate"].number(positive=True, maximum=MAX_FRAME_RATE),
         source={} if source_field is None else dict(source_field.obj()),
         observations=tuple(names),
     )

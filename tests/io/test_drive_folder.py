@@ -221,6 +221,10 @@ def test_drive_info_round_trip(tmp_path: Path) -> None:
         ),
         (lambda d: d.update(frame_rate=0), r"drive\.json: frame_rate: must be > 0"),
         (
+            lambda d: d.update(frame_rate=1e308),
+            r"drive\.json: frame_rate: must be <= 2000\.0, got 1e\+308",
+        ),
+        (
             lambda d: d.update(observations=["a/b"]),
             r"drive\.json: observations/0: 'a/b' is not a usable file name",
         ),
