@@ -22,6 +22,7 @@ and ``after the verifier`` (kept by the verifier, lost to the checks or the metr
 30 deg). A probe of the shipped detector; nothing here is tuned on these labels.
 
     PYTHONPATH=. python benchmarks/probe_real_misses.py [--images DIR --labels DIR] [--json OUT]
+        [--points-model A.onnx B.onnx]
 """
 
 from __future__ import annotations
@@ -113,8 +114,10 @@ def main() -> None:
                         help="600 x 600 top views (*.jpg), as ps2.0's")
     parser.add_argument("--labels", type=Path, default=PS20 / "labels")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--points-model", type=Path, nargs="+", default=None,
+                        help="grid ONNX files to probe instead of the shipped pair")
     args = parser.parse_args()
-    detector = SlotDetector()
+    detector = SlotDetector(args.points_model)
     views = {}
     for label_path in sorted(args.labels.glob("*.json")):
         image_path = args.images / f"{label_path.stem}.jpg"
