@@ -15,6 +15,11 @@ from semslam.io.dmpr_labels import TopviewLabels, write_dmpr_labels
 from semslam.simulation.topview_samples import sample_topviews
 from semslam.simulation.world import make_world
 
+# ../shared beside the checkout (as CI has it), else this workplace's copy
+PS2 = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "ps2.0-samples"
+if not PS2.is_dir():
+    PS2 = Path("/work/shared/realdata/ps2.0-samples")
+
 runner = CliRunner()
 
 
@@ -164,7 +169,7 @@ def test_evaluate_detections_scores_labelled_views(labelled_views):
 
 
 def test_evaluate_detections_reads_ps2_l_directions_in_the_separator_convention():
-    ps2 = Path("/work/shared/realdata/ps2.0-samples")
+    ps2 = PS2
     if not (ps2 / "labels").is_dir():
         pytest.skip(f"{ps2} is absent")
     args = ("evaluate", "detections", ps2 / "images", ps2 / "labels", "--json")
@@ -179,7 +184,7 @@ def test_evaluate_detections_reads_ps2_l_directions_in_the_separator_convention(
 def test_the_shipped_detector_keeps_its_measured_figures_on_the_real_ps2_samples():
     """A guard on the models and the checks behind them: BENCHMARKS.md reports 0.942 / 0.742
     (8-bit and 7-bit-weight twins) and 0.943 / 0.758 (float) on these 26 real views."""
-    ps2 = Path("/work/shared/realdata/ps2.0-samples")
+    ps2 = PS2
     if not (ps2 / "labels").is_dir():
         pytest.skip(f"{ps2} is absent")
     result = _run("evaluate", "detections", ps2 / "images", ps2 / "labels", "--json")

@@ -34,6 +34,7 @@ from semslam.io._json import (
 from semslam.io._text import read_text
 from semslam.io.atomic import atomic_write_text
 from semslam.io.errors import DriveFormatError
+from semslam.io.odometry import MAX_RATE
 
 DRIVE_FORMAT = "semslam-drive"
 DRIVE_VERSION = 1
@@ -41,9 +42,9 @@ _OBSERVATION_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
 MAX_START = 1e5
 """Bound on each start-pose number (m, m, rad): a drive starting farther out would leave the
 map's own range (1e6 m) or overflow the filter's arithmetic."""
-MAX_FRAME_RATE = 2000.0
-"""Bound on ``frame_rate``, Hz: the odometry's own (``odometry.MAX_RATE``); no camera of a drive
-semslam reads is faster."""
+MAX_FRAME_RATE = MAX_RATE
+"""Bound on ``frame_rate``, Hz: the odometry's own (:data:`semslam.io.odometry.MAX_RATE`); no
+camera of a drive semslam reads is faster."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -97,6 +97,7 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
         return world
     starts = [(np.asarray(p.position, float), p.direction, p.shape is JunctionShape.T)
               for p in world.marking_points]
+    junctions = [q for q, _, _ in starts]
     out: list[Marking] = []
     colours: list[tuple[int, int, int] | None] = []
     for m in world.markings:
@@ -109,8 +110,7 @@ def vary_paint(world: World, variation: PaintVariation, rng: np.random.Generator
         separator = junction is not None  # from a junction along its direction
         if dash is not None and not separator:
             w = m.width if width is None else width
-            for (p, q), white in _dashed(a, b, [s for s, _, _ in starts], dash,
-                                         variation.dash_shift, rng):
+            for (p, q), white in _dashed(a, b, junctions, dash, variation.dash_shift, rng):
                 if white or gap is not None:
                     out.append(Marking(p, q, w))
                     colours.append(None if white else gap)

@@ -2,6 +2,7 @@ import math
 
 import numpy as np
 
+from semslam.evaluation.map_metrics import point_segment_distances
 from semslam.simulation.topview_samples import (
     PaintVariation,
     random_slot_pose,
@@ -126,11 +127,11 @@ def test_vary_paint_dashes_entrance_lines_across_junctions_joined_by_faint_yello
     assert len(varied.marking_colours) == len(varied.markings) > len(world.markings)
     yellow = tuple(int(round((c + 128) / 2)) for c in (40, 200, 230))
     assert set(varied.marking_colours) == {None, yellow}
-    junctions = [np.asarray(p.position, float) for p in world.marking_points]
+    junctions = np.array([p.position for p in world.marking_points], float)
     for m, colour in zip(varied.markings, varied.marking_colours, strict=True):
         if colour == yellow:  # a gap: no junction under it
-            a, b = np.asarray(m.a, float), np.asarray(m.b, float)
-            assert all(_distance_to_segment(q, a, b) > 0.05 for q in junctions)
+            a, b = np.asarray(m.a, float)[None], np.asarray(m.b, float)[None]
+            assert point_segment_distances(junctions, a, b).min() > 0.05
     # white dashes 1 m long centred on junctions, for most of them (not those at a line's end)
     dashes = [m for m, c in zip(varied.markings, varied.marking_colours, strict=True)
               if c is None and _length(m) <= 1.0 + 1e-9
@@ -162,12 +163,6 @@ def test_the_renderer_paints_a_marking_in_its_own_colour() -> None:
     # the changed paint is redder than it was
     assert (other[changed][:, 2].astype(int) - other[changed][:, 0]).mean() > \
         (plain[changed][:, 2].astype(int) - plain[changed][:, 0]).mean()
-
-
-def _distance_to_segment(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    d = b - a
-    t = float(np.clip((q - a) @ d / max(float(d @ d), 1e-18), 0.0, 1.0))
-    return float(np.hypot(*(a + t * d - q)))
 
 
 def test_a_slot_pose_parks_into_a_free_slot_along_its_depth() -> None:
