@@ -14,9 +14,13 @@ largest conditional and separator, in variables) after the update at or past key
 slot sightings, painted-line detections) that sit on their null side at iSAM2's
 linearisation point but on the measurement's at its current estimate, and the other way
 (slow: every such factor is evaluated twice per check, inside the timed updates).
+``--step-costs`` prints, at every check that moves more than ``--show`` variables, the error of
+the factors in iSAM2 at its linearisation point, after the whole step (iSAM2's estimate), with
+only the variables relinearised moved (the new linearisation point), and after half and a
+quarter of the whole step (slow: the whole graph evaluated five times per such check).
 
     PYTHONPATH=. python benchmarks/profile_relinearisation.py DRIVE [--watch 1000 2000 3000]
-        [--cliques-at 2500 4000 5300] [--null-sides]
+        [--cliques-at 2500 4000 5300] [--null-sides] [--step-costs]
 """
 
 from __future__ import annotations
@@ -41,6 +45,9 @@ def main() -> None:
     parser.add_argument("--show", type=int, default=300, help="checks moving more than this")
     parser.add_argument("--cliques-at", type=int, nargs="*", default=[])
     parser.add_argument("--null-sides", action="store_true")
+    parser.add_argument("--step-costs", action="store_true",
+                        help="at checks moving more than --show variables, the graph's error "
+                        "at the linearisation point and after the step, whole and halved")
     args = parser.parse_args()
     cliques_at = sorted(args.cliques_at)
     drive = Drive.open(args.drive)
@@ -82,10 +89,24 @@ def main() -> None:
         steps = {k: np.round(delta.at(X(k)), 3).tolist() for k in args.watch
                  if delta.exists(X(k))}
         sides = null_sides() if args.null_sides else None
+        before = gtsam.Values(graph._theta)
         moved = predicted()
+        costs = step_costs(before, delta) if args.step_costs and len(moved) > args.show else None
         checks.append({"keyframes": len(mapper.keyframe_times), "moved": len(moved),
-                       "variables": graph._theta.size(), "steps": steps, "sides": sides})
+                       "variables": graph._theta.size(), "steps": steps, "sides": sides,
+                       "costs": costs})
         return moved
+
+    def step_costs(before: gtsam.Values, delta: gtsam.VectorValues) -> list[float]:
+        """The error of the factors in iSAM2 at the linearisation point, after the whole
+        step, after the step of the variables relinearised only, and after half and a
+        quarter of the whole step."""
+        factors = gtsam.NonlinearFactorGraph()
+        for i in range(graph._in_isam):
+            factors.add(graph.factors.at(i))
+        return [factors.error(before), factors.error(before.retract(delta)),
+                factors.error(graph._theta), factors.error(before.retract(delta.scale(0.5))),
+                factors.error(before.retract(delta.scale(0.25)))]
 
     def null_sides() -> tuple[int, int, int]:
         """(factors with a null-hypothesis loss, null at the linearisation point but not at
@@ -115,6 +136,9 @@ def main() -> None:
         if c["moved"] > args.show:
             print(f"keyframe {c['keyframes']}: {c['moved']} of {c['variables']} moved, "
                   f"{took.get(c['keyframes'], 0.0):.2f} s; steps {c['steps']}")
+            if c["costs"]:
+                print("    error at the point / whole step / relinearised only / half / quarter: "
+                      + " / ".join(f"{e:.1f}" for e in c["costs"]))
     if args.null_sides:
         print("| check at keyframe | null-hypothesis factors | null at the linearisation point "
               "only | null at the estimate only |")

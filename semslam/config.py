@@ -218,6 +218,14 @@ class MappingConfig(_Section):
         "(on `large` worlds 1-5, 2 cut iSAM2's time by a fifth in all, one world slower, maps "
         "the same; BENCHMARKS.md)",
     )
+    rebuild_share: float = Field(
+        0.05,
+        ge=0,
+        le=1,
+        description="iSAM2 is rebuilt with every factor linearised at its estimate when a "
+        "relinearisation would move more than this share of the variables (after long "
+        "loops); 0: never (BENCHMARKS.md)",
+    )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
         1e-5, gt=0, description="final LM stops when the error improves by less than this"

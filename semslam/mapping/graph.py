@@ -19,7 +19,18 @@ iSAM2 relinearises by its own rule (``relinearize_threshold``, every
 moves (their step since the linearisation point), moves ``_theta`` the same way
 and swaps in every factor on them, linearised again at the new point, in the
 same update, so the max-mixtures choose their component again as before and
-the container factors never need their first-order shift.
+the container factors never need their first-order shift. The wrapper says when iSAM2
+checks (``force_relinearize`` every ``relinearize_skip`` updates; iSAM2's own count is never
+reached), so the cadence survives a rebuild.
+
+Why a rebuild after a long loop. iSAM2 relinearises only the variables whose step passed the
+threshold; after a long loop that is thousands of poses of a chain whose odometry is nearly
+rigid across the car, beside neighbours left where they were. The new linearisation point is
+then as far from consistent as the old one (on `large` its error stays 1e8-1e9 where the
+estimate's is 1e4-1e5), so the next check's step swings back, and every swing re-eliminates
+most of the tree. When more than ``rebuild_share`` of the variables would move, a fresh iSAM2
+gets every factor linearised at the whole estimate instead: one Gauss-Newton step from a
+consistent point, and a fresh ordering (BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -58,21 +69,25 @@ class Graph:
         relinearize_threshold: float = 0.05,
         relinearize_skip: int = 5,
         reorder_growth: float = 0.0,
+        rebuild_share: float = 0.0,
     ) -> None:
         """``reorder_growth`` > 1: iSAM2 re-eliminates the whole tree with a fresh ordering
         when its fill-in (nonzeros) has grown to that many times the fill-in after the last
         full ordering (gtsam's adaptive reordering); 0: only when an update touches most
         variables (iSAM2's own rule). The incremental ordering otherwise keeps the fill-in of
-        long loops: on `large` cliques of 126-298 variables where a fresh one has 13-26."""
+        long loops: on `large` cliques of 126-298 variables where a fresh one has 13-26.
+        ``rebuild_share`` in (0, 1]: a check that would relinearise more than that share of
+        the variables rebuilds iSAM2 at its whole estimate instead; 0: never."""
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
-        params.relinearizeSkip = relinearize_skip
+        params.relinearizeSkip = 2**31 - 1  # never by iSAM2's own count: see update()
         params.enablePartialRelinearizationCheck = False  # the full check is the one predicted
         # QR: Cholesky fails on the ill-conditioned steps that null-hypothesis losses give
         params.setFactorization("QR")
         if reorder_growth > 0:
             params.enableAdaptiveReorder = True
             params.adaptiveReorderThreshold = reorder_growth
+        self._params = params
         self.isam = gtsam.ISAM2(params)
         self.factors = gtsam.NonlinearFactorGraph()
         self._batch: gtsam.Values | None = None  # set by optimize_batch
@@ -87,6 +102,8 @@ class Graph:
         self._threshold = relinearize_threshold
         self._skip = relinearize_skip
         self._updates = 0
+        self._rebuild_share = rebuild_share
+        self.rebuilds = 0  # iSAM2 rebuilt at its estimate (after long loops)
         self.last_result: gtsam.ISAM2Result | None = None  # of the last iSAM2 update
 
     # -- building
@@ -122,7 +139,11 @@ class Graph:
     def update(self) -> None:
         """One iSAM2 step with everything added since the last one."""
         self._updates += 1
-        moved = self._relinearized_by_isam2() if self._updates % self._skip == 0 else []
+        check = self._updates % self._skip == 0
+        if check and self._rebuild_due():
+            self._rebuild_at_estimate()
+            check = False  # the estimate is the linearisation point now
+        moved = self._relinearized_by_isam2() if check else []
         again = sorted({i for key in moved for i in self._factors_of[key] if i < self._in_isam})
         new = list(range(self._in_isam, self.factors.size()))
         self._theta.insert(self._new_values)
@@ -130,7 +151,10 @@ class Graph:
         with _one_line_errors():
             for i in again + new:
                 linear.add(self._linearized(i))
-            result = self.isam.update(linear, self._new_values, [self._slot[i] for i in again])
+            params = gtsam.ISAM2UpdateParams()
+            params.removeFactorIndices = [self._slot[i] for i in again]
+            params.force_relinearize = check
+            result = self.isam.update(linear, self._new_values, params)
         self.last_result = result
         slots = list(result.getNewFactorsIndices())
         for i, slot in zip(again, slots[: len(again)], strict=True):
@@ -144,17 +168,46 @@ class Graph:
         linear = self.factors.at(index).linearize(self._theta)
         return gtsam.LinearContainerFactor(linear, self._theta)
 
+    def _largest_steps(self) -> tuple[list[int], FloatArray]:
+        """Every variable in iSAM2 and the largest component of its step since its
+        linearisation point."""
+        keys = sorted(self._theta.keys())
+        step = np.abs(self.isam.getDelta().vector(keys))
+        starts = np.cumsum([0] + [self._dims[key] for key in keys[:-1]])
+        return keys, np.maximum.reduceat(step, starts)
+
+    def _rebuild_due(self) -> bool:
+        if self._rebuild_share <= 0 or self._theta.size() == 0:
+            return False
+        keys, largest = self._largest_steps()
+        return np.count_nonzero(largest >= self._threshold) > self._rebuild_share * len(keys)
+
+    def _rebuild_at_estimate(self) -> None:
+        """A fresh iSAM2 holding every factor linearised at the old one's whole estimate.
+        Kept only if it eliminates: else the old iSAM2 goes on as it was."""
+        theta, isam = self._theta, self.isam
+        with _one_line_errors():
+            self._theta = self.isam.calculateEstimate()
+        linear = gtsam.NonlinearFactorGraph()
+        for i in range(self._in_isam):
+            linear.add(self._linearized(i))
+        self.isam = gtsam.ISAM2(self._params)
+        try:
+            result = self.isam.update(linear, self._theta, gtsam.ISAM2UpdateParams())
+        except RuntimeError:  # an indeterminate system: keep the old tree
+            self._theta, self.isam = theta, isam
+            return
+        self._slot[: self._in_isam] = list(result.getNewFactorsIndices())
+        self.rebuilds += 1
+
     def _relinearized_by_isam2(self) -> list[int]:
         """The variables iSAM2 will relinearise in this update, by its own rule (largest
         component of the step since the linearisation point at least the threshold); moves
         ``_theta`` to where iSAM2 will move its own point: ``theta + delta``."""
         if self._theta.size() == 0:
             return []
-        keys = sorted(self._theta.keys())
+        keys, largest = self._largest_steps()
         delta = self.isam.getDelta()
-        step = np.abs(delta.vector(keys))
-        starts = np.cumsum([0] + [self._dims[key] for key in keys[:-1]])
-        largest = np.maximum.reduceat(step, starts)  # per variable
         moved = [keys[n] for n in np.flatnonzero(largest >= self._threshold)]
         if moved:
             steps = gtsam.VectorValues()

@@ -222,7 +222,8 @@ class Mapper:
         self.robust = config.robust == "maxmix"
         self.null = NullHypothesis(config.null_weight, config.null_information_scale)
         self.graph = Graph(
-            config.relinearize_threshold, config.relinearize_skip, config.reorder_growth
+            config.relinearize_threshold, config.relinearize_skip, config.reorder_growth,
+            config.rebuild_share,
         )
         self.slots = SlotLandmarks()
         self.pool = SlotPool(config.pool_radius, config.pool_max_age)

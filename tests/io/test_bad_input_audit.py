@@ -312,6 +312,8 @@ def test_a_misspelt_section_in_a_semslam_variable_is_refused(
         (b'{"mapping": {"calibration_walk": [-0.002, 2e-5]}}', ["calibration_walk", "sigmas >= 0"]),
         (b'{"mapping": {"calibration_walk": [NaN, 1]}}', ["calibration_walk", "not a finite"]),
         (b'{"mapping": {"reorder_growth": 0.5}}', ["reorder_growth", "0 (never) or a growth"]),
+        (b'{"mapping": {"rebuild_share": 1.5}}',
+         ["mapping.rebuild_share", "less than or equal to 1"]),
         (b'{"simulation": {"observation_noise": {"detection_confidence_range": [0.9, 0.1]}}}',
          ["detection_confidence_range", "0 <= low <= high <= 1"]),
         (b'{"simulation": {"observation_noise": {"label_confidence_range": [-3, 5]}}}',

@@ -61,6 +61,24 @@ def test_relinearised_isam2_reaches_the_optimum_that_batch_lm_finds():
     assert _largest_error(graph, truth, points) < 1e-4
 
 
+@pytest.mark.parametrize("skip", [1, 3])
+def test_a_rebuild_at_the_estimate_after_the_loop_reaches_the_optimum(skip):
+    """When a check would move more than ``rebuild_share`` of the variables (the loop
+    closing on a 0.7 rad heading error), iSAM2 is rebuilt at its estimate; the incremental
+    estimate still reaches the optimum, and the tree holds each factor once."""
+    graph = Graph(relinearize_threshold=0.01, relinearize_skip=skip, rebuild_share=0.3)
+    truth, points = _circle(graph)
+    assert graph.rebuilds >= 1
+    assert _largest_error(graph, truth, points) < 1e-4
+    assert graph.isam.getFactorsUnsafe().nrFactors() == graph.factors.size()
+
+
+def test_without_a_rebuild_share_isam2_is_never_rebuilt():
+    graph = Graph(relinearize_threshold=0.01, relinearize_skip=1)
+    _circle(graph)
+    assert graph.rebuilds == 0
+
+
 def test_reordering_the_whole_tree_as_it_fills_in_changes_the_order_not_the_estimate():
     """gtsam's adaptive reordering (``reorder_growth``) re-orders the tree more often than
     iSAM2's own rule; the estimate is the same to round-off and still the optimum."""
