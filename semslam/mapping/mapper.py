@@ -787,6 +787,7 @@ class Mapper:
             "gyro_bias_rad_s": float(self.calibration[1]),
             "association_s": round(self._timing["association_s"], 3),
             "isam2_s": round(self._timing["update_s"], 3),
+            "isam2_rebuilds": self.graph.rebuilds,
             "batch_s": round(time.perf_counter() - started, 3),
             "slot_covariance_s": round(self._timing.get("slot_covariance_s", 0.0), 3),
         }
