@@ -219,13 +219,13 @@ class MappingConfig(_Section):
         "the same; BENCHMARKS.md)",
     )
     rebuild_share: float = Field(
-        0.3,
+        0.15,
         ge=0,
         le=1,
         description="iSAM2 is rebuilt with every factor linearised at its estimate when a "
         "relinearisation would move more than this share of the variables (after long "
-        "loops); 0: never (on `large` worlds 1-5 a third less mapping time, maps about the "
-        "same; at 0.05 world 3 broke; BENCHMARKS.md)",
+        "loops); 0: never (on `large` worlds 1-5 a third less mapping time, maps as close or "
+        "closer; at 0.05 world 3 broke; BENCHMARKS.md)",
     )
     batch_max_iterations: int = Field(20, ge=1, description="final Levenberg-Marquardt")
     batch_relative_tolerance: float = Field(
