@@ -89,9 +89,9 @@ def main() -> None:
         steps = {k: np.round(delta.at(X(k)), 3).tolist() for k in args.watch
                  if delta.exists(X(k))}
         sides = null_sides() if args.null_sides else None
-        before = gtsam.Values(graph._theta)
+        before = gtsam.Values(graph._theta) if args.step_costs else None
         moved = predicted()
-        costs = step_costs(before, delta) if args.step_costs and len(moved) > args.show else None
+        costs = step_costs(before, delta) if before is not None and len(moved) > args.show else None
         checks.append({"keyframes": len(mapper.keyframe_times), "moved": len(moved),
                        "variables": graph._theta.size(), "steps": steps, "sides": sides,
                        "costs": costs})
